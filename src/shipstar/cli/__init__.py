@@ -1,0 +1,80 @@
+"""The ``shipstar`` command line.
+
+Each sub-command lives in its own module ``shipstar/cli/_cmd_<name>.py`` that defines
+
+``register(subparsers) -> argparse.ArgumentParser``
+    add the sub-command's parser (with an example in its epilog) and
+    ``parser.set_defaults(run=<function(args) -> int>)``.
+
+Modules import their heavy dependencies inside ``run`` so that ``shipstar --help`` is
+fast.  Errors a user can cause are :class:`shipstar.errors.ShipstarError`; they are
+printed as one line ``shipstar <command>: error: <message>`` with exit code 2, never a
+traceback (``--debug`` shows it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+
+from shipstar.errors import ShipstarError
+
+__all__ = ["main", "build_parser"]
+
+EXIT_OK = 0
+EXIT_FAILED = 1      # the job ran but did not succeed (e.g. a frame did not solve)
+EXIT_BAD_INPUT = 2   # bad input: one-line message on stderr
+
+
+def _command_modules():
+    import shipstar.cli as pkg
+
+    names = sorted(m.name for m in pkgutil.iter_modules(pkg.__path__) if m.name.startswith("_cmd_"))
+    return [importlib.import_module(f"shipstar.cli.{n}") for n in names]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from shipstar import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="shipstar",
+        description="Ship heading, pitch and roll to arcseconds from star sensor images.",
+        epilog="Run 'shipstar COMMAND --help' for a command's options and an example.",
+    )
+    parser.add_argument("--version", action="version", version=f"shipstar {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for mod in _command_modules():
+        mod.register(sub)
+    return parser
+
+
+def main(argv=None) -> int:
+    """Entry point of the ``shipstar`` console command; returns the exit code."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "run", None):
+        parser.print_help()
+        return EXIT_BAD_INPUT
+    try:
+        return int(args.run(args) or 0)
+    except ShipstarError as exc:
+        if args.debug:
+            raise
+        print(f"shipstar {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except (OSError, MemoryError) as exc:
+        if args.debug:
+            raise
+        print(f"shipstar {args.command}: error: {exc.__class__.__name__}: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print(f"shipstar {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+def _entry() -> None:  # pragma: no cover - console script wrapper
+    sys.exit(main())
