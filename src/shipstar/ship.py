@@ -1,0 +1,251 @@
+"""Ship heading, pitch and roll from calibrated star sensors, and fusion of two sensors.
+
+Seed 003 eq. 14-17: ``C_hor_from_deck = C_hor_from_sensor @ C_deck_from_sensor.T`` and the
+angles by :func:`shipstar.frames.ship_angles_from_C_hor_from_deck`.  Two fusions:
+
+``fuse_seed_rule``
+    seed 003 eq. 3-5: heading = mean of the two sensors' headings, pitch from the
+    fore-aft sensor, roll from the athwartship sensor.
+``fuse_joint``
+    one weighted attitude problem for the deck frame from both sensors' star vectors at
+    once (each mapped to the deck frame by its installation matrix).  It is the
+    minimum-variance solution: each sensor's weak roll-about-boresight axis is fixed by
+    the other's stars.
+
+Covariances are 3x3 over (heading, pitch, roll) in rad^2, propagated from the attitude
+covariance about the deck (body) axes with the analytic Jacobian of the angle extraction.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from shipstar.errors import ShipstarError
+from shipstar.frames import gimbal_lock_mask, ship_angles_from_C_hor_from_deck, wrap_2pi, wrap_pi
+
+__all__ = [
+    "ShipAttitude",
+    "SensorStars",
+    "ship_attitude_from_sensor",
+    "fuse_seed_rule",
+    "fuse_joint",
+    "ship_angles_jacobian",
+]
+
+_NAN33 = np.full((3, 3), np.nan)
+
+
+@dataclass(frozen=True)
+class ShipAttitude:
+    """Ship attitude at one instant.
+
+    Attributes
+    ----------
+    solved : bool
+    reason : str
+        Why not solved ('' when solved).
+    heading_rad, pitch_rad, roll_rad : float
+        Seed 001 eq. 2 angles (conventions.md); NaN when not solved.
+    C_hor_from_deck : ndarray, shape (3, 3)
+    covariance_rad2 : ndarray, shape (3, 3)
+        Covariance of (heading, pitch, roll).
+    method : str
+        ``"single"``, ``"seed-rule"`` or ``"joint"``.
+    gimbal_locked : bool
+        Pitch within 1e-6 rad of +-90 deg: heading and roll are not separable.
+    n_stars : int
+        Stars used.
+    """
+
+    solved: bool
+    reason: str
+    heading_rad: float = float("nan")
+    pitch_rad: float = float("nan")
+    roll_rad: float = float("nan")
+    C_hor_from_deck: np.ndarray = field(default_factory=lambda: _NAN33.copy())
+    covariance_rad2: np.ndarray = field(default_factory=lambda: _NAN33.copy())
+    method: str = ""
+    gimbal_locked: bool = False
+    n_stars: int = 0
+
+    @property
+    def sigma_rad(self) -> np.ndarray:
+        """1-sigma of (heading, pitch, roll), shape (3,)."""
+        return np.sqrt(np.diag(self.covariance_rad2))
+
+    @classmethod
+    def failed(cls, reason: str, method: str) -> "ShipAttitude":
+        return cls(solved=False, reason=reason, method=method)
+
+
+@dataclass(frozen=True)
+class SensorStars:
+    """One sensor's matched stars at one instant, for the joint solution.
+
+    Attributes
+    ----------
+    w_sensor : ndarray, shape (N, 3)
+        Measured unit vectors in the sensor frame.
+    v_hor : ndarray, shape (N, 3)
+        The same stars' observed (refracted) directions in the horizontal frame.
+    C_deck_from_sensor : ndarray, shape (3, 3)
+        The sensor's calibrated installation matrix.
+    sigma_rad : float or ndarray, shape (N,)
+        Per-star angular measurement error (1-sigma, per axis).
+    """
+
+    w_sensor: np.ndarray
+    v_hor: np.ndarray
+    C_deck_from_sensor: np.ndarray
+    sigma_rad: float | np.ndarray
+
+
+def ship_angles_jacobian(C_hor_from_deck) -> np.ndarray:
+    """d(heading, pitch, roll) / d(phi), phi a small rotation about the deck axes.
+
+    The perturbed attitude is ``C_hor_from_deck @ (I + [phi x])``.
+
+    Parameters
+    ----------
+    C_hor_from_deck : array_like, shape (..., 3, 3)
+
+    Returns
+    -------
+    ndarray, shape (..., 3, 3)
+        Rows (heading, pitch, roll), columns (phi_x, phi_y, phi_z).  Heading and roll
+        rows are infinite at gimbal lock.
+    """
+    C = np.asarray(C_hor_from_deck, float)
+    # dC = C @ [phi x]:   dC[:, 0] = C[:,1] phi_z - C[:,2] phi_y
+    #                     dC[:, 1] = C[:,2] phi_x - C[:,0] phi_z
+    #                     dC[:, 2] = C[:,0] phi_y - C[:,1] phi_x
+    # derivative of column j w.r.t. phi_k, for k = x, y, z:
+    zero = np.zeros(C.shape[:-1])
+    dcol0 = np.stack([zero, -C[..., :, 2], C[..., :, 1]], axis=-1)  # (..., 3 rows, 3 phis)
+    dcol1 = np.stack([C[..., :, 2], zero, -C[..., :, 0]], axis=-1)
+    dcol2 = np.stack([-C[..., :, 1], C[..., :, 0], zero], axis=-1)
+    c00, c20, c10 = C[..., 0, 0], C[..., 2, 0], C[..., 1, 0]
+    c11, c12 = C[..., 1, 1], C[..., 1, 2]
+    h2 = c00**2 + c20**2
+    dK = (c00[..., None] * dcol0[..., 2, :] - c20[..., None] * dcol0[..., 0, :]) / h2[..., None]
+    dpsi = dcol0[..., 1, :] / np.sqrt(h2)[..., None]
+    r2 = c11**2 + c12**2
+    dtheta = -(c11[..., None] * dcol2[..., 1, :] - c12[..., None] * dcol1[..., 1, :]) / r2[..., None]
+    return np.stack([dK, dpsi, dtheta], axis=-2)
+
+
+def _from_C(C_hor_from_deck, cov_body_rad2, method: str, n_stars: int) -> ShipAttitude:
+    C = np.asarray(C_hor_from_deck, float)
+    K, psi, theta = ship_angles_from_C_hor_from_deck(C)
+    locked = bool(gimbal_lock_mask(C))
+    if cov_body_rad2 is None or locked:
+        cov = _NAN33.copy()
+    else:
+        J = ship_angles_jacobian(C)
+        cov = J @ np.asarray(cov_body_rad2, float) @ J.T
+    return ShipAttitude(
+        solved=True, reason="", heading_rad=float(K), pitch_rad=float(psi), roll_rad=float(theta),
+        C_hor_from_deck=C, covariance_rad2=cov, method=method, gimbal_locked=locked, n_stars=n_stars,
+    )
+
+
+def ship_attitude_from_sensor(C_hor_from_sensor, C_deck_from_sensor, covariance_sensor_rad2=None,
+                              n_stars: int = 0) -> ShipAttitude:
+    """Ship attitude from one calibrated sensor (seed 003 eq. 14-17).
+
+    Parameters
+    ----------
+    C_hor_from_sensor : array_like, shape (3, 3)
+        The sensor's attitude in the horizontal frame (from its refracted star vectors).
+    C_deck_from_sensor : array_like, shape (3, 3)
+        Its installation matrix.
+    covariance_sensor_rad2 : array_like, shape (3, 3), optional
+        Attitude error covariance about the sensor axes (as
+        :class:`shipstar.attitude.AttitudeSolution` reports it).
+
+    Returns
+    -------
+    ShipAttitude
+    """
+    C_hs = np.asarray(C_hor_from_sensor, float)
+    C_ds = np.asarray(C_deck_from_sensor, float)
+    if C_hs.shape != (3, 3) or C_ds.shape != (3, 3) or not (np.all(np.isfinite(C_hs)) and np.all(np.isfinite(C_ds))):
+        raise ShipstarError("sensor attitude and installation matrix must be finite 3x3 rotation matrices")
+    C_hd = C_hs @ C_ds.T
+    cov_deck = None
+    if covariance_sensor_rad2 is not None:
+        # a small rotation about sensor axes is C_ds @ phi about deck axes
+        cov_deck = C_ds @ np.asarray(covariance_sensor_rad2, float) @ C_ds.T
+    return _from_C(C_hd, cov_deck, "single", n_stars)
+
+
+def _circular_mean(a_rad, b_rad):
+    return float(wrap_2pi(a_rad + 0.5 * wrap_pi(b_rad - a_rad)))
+
+
+def fuse_seed_rule(fore_aft: ShipAttitude, athwartship: ShipAttitude) -> ShipAttitude:
+    """Seed 003's fusion: heading averaged, pitch from the fore-aft sensor, roll from the
+    athwartship sensor.
+
+    The two inputs' errors are taken as independent.  The resulting matrix is rebuilt from
+    the fused angles.
+    """
+    from shipstar.frames import C_hor_from_deck
+
+    if not (fore_aft.solved and athwartship.solved):
+        which = "fore-aft" if not fore_aft.solved else "athwartship"
+        reason = fore_aft.reason if not fore_aft.solved else athwartship.reason
+        return ShipAttitude.failed(f"{which} sensor not solved: {reason}", "seed-rule")
+    K = _circular_mean(fore_aft.heading_rad, athwartship.heading_rad)
+    psi, theta = fore_aft.pitch_rad, athwartship.roll_rad
+    P1, P2 = fore_aft.covariance_rad2, athwartship.covariance_rad2
+    cov = np.array([
+        [0.25 * (P1[0, 0] + P2[0, 0]), 0.5 * P1[0, 1], 0.5 * P2[0, 2]],
+        [0.5 * P1[1, 0], P1[1, 1], 0.0],
+        [0.5 * P2[2, 0], 0.0, P2[2, 2]],
+    ])
+    C = C_hor_from_deck(K, psi, theta)
+    return ShipAttitude(
+        solved=True, reason="", heading_rad=K, pitch_rad=float(psi), roll_rad=float(theta),
+        C_hor_from_deck=C, covariance_rad2=cov, method="seed-rule",
+        gimbal_locked=bool(gimbal_lock_mask(C)), n_stars=fore_aft.n_stars + athwartship.n_stars,
+    )
+
+
+def fuse_joint(sensors: Sequence[SensorStars], *, reject_outliers: bool = True) -> ShipAttitude:
+    """Joint deck attitude from all sensors' stars at once.
+
+    Solves ``v_hor_i = C_hor_from_deck @ (C_deck_from_sensor_s @ w_i)`` for every star i of
+    every sensor s, weighted by ``1 / sigma_i^2``, with :func:`shipstar.attitude.solve_attitude`.
+
+    Parameters
+    ----------
+    sensors : sequence of SensorStars
+        One entry per sensor (frames paired in time by the caller).
+
+    Returns
+    -------
+    ShipAttitude
+        With method ``"joint"`` and the covariance of (heading, pitch, roll).
+    """
+    from shipstar.attitude import solve_attitude
+
+    if len(sensors) == 0:
+        return ShipAttitude.failed("no sensor data", "joint")
+    w_deck, v_hor, sigma = [], [], []
+    for s in sensors:
+        w = np.atleast_2d(np.asarray(s.w_sensor, float))
+        v = np.atleast_2d(np.asarray(s.v_hor, float))
+        if w.shape != v.shape or w.shape[-1] != 3:
+            raise ShipstarError(f"sensor star arrays must both be (N, 3), got {w.shape} and {v.shape}")
+        w_deck.append(w @ np.asarray(s.C_deck_from_sensor, float).T)
+        v_hor.append(v)
+        sigma.append(np.broadcast_to(np.asarray(s.sigma_rad, float), (w.shape[0],)))
+    w_all, v_all, sig_all = np.concatenate(w_deck), np.concatenate(v_hor), np.concatenate(sigma)
+    sol = solve_attitude(w_all, v_all, sigma_rad=sig_all, reject_outliers=reject_outliers)
+    if not sol.solved:
+        return ShipAttitude.failed(sol.reason, "joint")
+    return _from_C(sol.C_ref_from_body, sol.covariance_rad2, "joint", int(sol.n_used))
