@@ -1,0 +1,403 @@
+"""Earth orientation (UT1 - UTC, polar motion) from the IERS tables shipped offline.
+
+The source is ``finals2000A.all`` from the ``astropy-iers-data`` package (IERS Rapid
+Service / Bulletin A, 1973-01-02 to about a year after the package was built), read
+directly with NumPy and kept in memory; nothing is ever downloaded and astropy is not
+imported.  Policy (see ``docs/sky-model.md``):
+
+- Values: Bulletin B columns where present, else Bulletin A (as astropy's ``IERS_A``).
+- Interpolation: linear in UTC MJD.  UT1 - UTC jumps by 1 s at a leap second, so it is
+  interpolated as UT1 - TAI (continuous) and TAI - UTC is added back at the requested
+  time.
+- Quality: ``"measured"`` between two measured rows (flag I, or Bulletin B),
+  ``"predicted"`` when a bracketing row is a Bulletin A prediction (flag P),
+  ``"extrapolated"`` past the table's last row.
+- Extrapolation: UT1 - TAI continues with its mean trend over the last 365 days of the
+  table (a whole year, so the seasonal terms cancel); polar motion follows a
+  least-squares fit of offset + drift + annual + Chandler (433 d) terms to the last six
+  years of the table, shifted to be continuous at the end.  The estimated (rms) errors
+  are the table's last stated errors plus a growth calibrated by back-testing this very
+  extrapolation on 30 years of measured values: ``2.5e-4 s * d + 2e-7 s * d**2`` for
+  UT1 - UTC and ``0.045'' * (d / 100)**0.25`` for polar motion, d = days past the
+  table's end (UT1 is not predictable: 0.1 s after a year, 0.3 s after two).  Every
+  extrapolated value comes with an :class:`~shipstar.errors.AccuracyWarning` giving those
+  sizes; past the point where the UT1 - UTC error would exceed
+  :data:`MAX_DUT1_ERROR_S` (0.5 s, i.e. 7.5'' of azimuth at the equator), or where
+  UT1 - UTC would pass 0.9 s (an unknown leap second), :func:`earth_orientation`
+  refuses with a :class:`ShipstarError`.
+- Before the table's start (1973-01-02): :class:`ShipstarError`.
+- Leap seconds: after the expiry of the shipped leap-second file no new leap second is
+  known; times after it get an AccuracyWarning saying so.
+
+The celestial pole offsets dX, dY (< 1 mas) are not used, as in ``erfa.apco13`` and
+astropy's AltAz.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from shipstar.errors import AccuracyWarning, ShipstarError
+from shipstar.sky.time import (
+    MJD_ZERO_JD,
+    iso_from_utc_jd,
+    leap_second_table_expiry_mjd,
+    tai_minus_utc_s,
+)
+from shipstar.units import ASEC2RAD, RAD2ASEC
+
+__all__ = [
+    "EarthOrientation",
+    "EopTableInfo",
+    "earth_orientation",
+    "eop_table_info",
+    "QUALITIES",
+    "MAX_DUT1_ERROR_S",
+    "UT1_TREND_WINDOW_DAYS",
+    "POLAR_MOTION_FIT_WINDOW_DAYS",
+    "CHANDLER_PERIOD_DAYS",
+]
+
+QUALITIES = ("measured", "predicted", "extrapolated")
+#: Extrapolation is refused once the estimated UT1 - UTC error exceeds this (s): 7.5''
+#: of azimuth at the equator.
+MAX_DUT1_ERROR_S = 0.5
+#: Window (days) over which the UT1 - TAI trend is taken for extrapolation.
+UT1_TREND_WINDOW_DAYS = 365.0
+#: Window (days) of the polar motion fit used for extrapolation.
+POLAR_MOTION_FIT_WINDOW_DAYS = 6 * 365.0
+#: Chandler wobble period (days) used in the polar motion fit.
+CHANDLER_PERIOD_DAYS = 433.0
+_ANNUAL_PERIOD_DAYS = 365.25
+#: Growth of the extrapolation error (rms) with the days d past the table's end, from
+#: back-tests on the measured series: UT1 - UTC ``2.5e-4 s * d + 2e-7 s * d**2``,
+#: polar motion ``0.045'' * (d / 100)**0.25``.
+UT1_ERROR_S_PER_DAY = 2.5e-4
+UT1_ERROR_S_PER_DAY2 = 2.0e-7
+PM_ERROR_ARCSEC_AT_100_DAYS = 0.045
+_PM_ERROR_EXPONENT = 0.25
+#: Azimuth error (arcsec) per second of UT1 error at the equator: 15''/s of time.
+_ASEC_PER_S_OF_UT1 = 15.0 * 1.00273781191135448
+
+
+@dataclass(frozen=True)
+class EarthOrientation:
+    """Earth orientation parameters at one time.
+
+    Attributes
+    ----------
+    dut1_s : float
+        UT1 - UTC (s).
+    xp_rad, yp_rad : float
+        Polar motion (rad).
+    quality : str
+        ``"measured"``, ``"predicted"`` or ``"extrapolated"`` (see module notes).
+    dut1_error_s : float
+        Estimated possible error of ``dut1_s`` (s).
+    polar_motion_error_rad : float
+        Estimated possible error of each polar motion component (rad).
+    """
+
+    dut1_s: float
+    xp_rad: float
+    yp_rad: float
+    quality: str
+    dut1_error_s: float
+    polar_motion_error_rad: float = 0.0
+
+    def __post_init__(self):
+        for name in ("dut1_s", "xp_rad", "yp_rad", "dut1_error_s", "polar_motion_error_rad"):
+            value = getattr(self, name)
+            try:
+                value = float(value)
+            except (TypeError, ValueError):
+                raise ShipstarError(f"EarthOrientation.{name} must be a number, got {value!r}") from None
+            if not math.isfinite(value):
+                raise ShipstarError(f"EarthOrientation.{name} must be finite, got {value}")
+            object.__setattr__(self, name, value)
+        if self.quality not in QUALITIES:
+            raise ShipstarError(f"EarthOrientation.quality must be one of {QUALITIES}, "
+                                f"got {self.quality!r}")
+        if abs(self.dut1_s) > 1.0:
+            raise ShipstarError(f"UT1-UTC = {self.dut1_s} s: leap seconds keep it within 0.9 s")
+        for name in ("xp_rad", "yp_rad"):
+            if abs(getattr(self, name)) > 2.0 * ASEC2RAD:
+                raise ShipstarError(f"polar motion {name} = {getattr(self, name) * RAD2ASEC:.3f} "
+                                    "arcsec is not physical (|x|, |y| < 1 arcsec)")
+        if self.dut1_error_s < 0 or self.polar_motion_error_rad < 0:
+            raise ShipstarError("EarthOrientation errors must be >= 0")
+
+    @property
+    def xp_arcsec(self) -> float:
+        return self.xp_rad * RAD2ASEC
+
+    @property
+    def yp_arcsec(self) -> float:
+        return self.yp_rad * RAD2ASEC
+
+
+@dataclass(frozen=True)
+class EopTableInfo:
+    """What the shipped IERS table covers (UTC MJDs) and where it comes from."""
+
+    source: str
+    first_mjd: float
+    last_measured_mjd: float
+    last_mjd: float
+    horizon_mjd: float                 # extrapolation refused after this
+    leap_second_expiry_mjd: float
+
+
+@dataclass(frozen=True, eq=False)
+class _Table:
+    source: str
+    mjd: np.ndarray
+    ut1_tai_s: np.ndarray
+    xp_arcsec: np.ndarray
+    yp_arcsec: np.ndarray
+    ut1_error_s: np.ndarray
+    pm_error_arcsec: np.ndarray
+    measured: np.ndarray               # both UT1 and polar motion measured on that row
+
+
+def _field(block: np.ndarray, first: int, last: int) -> np.ndarray:
+    """Fixed-width columns ``first..last`` (1-based, inclusive) as floats, NaN where blank."""
+    width = last - first + 1
+    text = np.ascontiguousarray(block[:, first - 1:last]).view(f"S{width}").ravel()
+    text = np.char.strip(text)
+    out = np.full(text.shape, np.nan)
+    ok = text != b""
+    out[ok] = text[ok].astype(float)
+    return out
+
+
+def _flag(block: np.ndarray, col: int) -> np.ndarray:
+    return block[:, col - 1].view("S1").ravel()
+
+
+def _parse_finals(path: str) -> _Table:
+    """Parse ``finals2000A.all`` (format: ``ReadMe.finals2000A``)."""
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.read()
+    except OSError as exc:
+        raise ShipstarError(f"cannot read the IERS table {path}: {exc.strerror}") from None
+    lines = [ln.ljust(187)[:187] for ln in raw.split(b"\n") if ln.strip()]
+    block = np.frombuffer(b"".join(lines), dtype="S1").reshape(len(lines), 187)
+    mjd = _field(block, 8, 15)
+    pm_flag, ut1_flag = _flag(block, 17), _flag(block, 58)
+    ut1_a, ut1_err = _field(block, 59, 68), _field(block, 69, 78)
+    xp_a, xp_err = _field(block, 19, 27), _field(block, 28, 36)
+    yp_a, yp_err = _field(block, 38, 46), _field(block, 47, 55)
+    xp_b, yp_b, ut1_b = _field(block, 135, 144), _field(block, 145, 154), _field(block, 155, 165)
+    keep = np.isfinite(ut1_a) & (pm_flag != b" ") & np.isfinite(xp_a) & np.isfinite(yp_a)
+    if keep.sum() < 400 or np.any(np.diff(mjd[keep]) != 1.0):
+        raise ShipstarError(f"IERS table {path} is not a daily finals2000A table")
+    b_ut1 = np.isfinite(ut1_b)
+    b_pm = np.isfinite(xp_b) & np.isfinite(yp_b)
+    ut1_utc = np.where(b_ut1, ut1_b, ut1_a)[keep]
+    mjd = mjd[keep]
+    measured = ((b_ut1 | (ut1_flag == b"I")) & (b_pm | (pm_flag == b"I")))[keep]
+    return _Table(
+        source=str(path),
+        mjd=mjd,
+        ut1_tai_s=ut1_utc - tai_minus_utc_s(mjd),
+        xp_arcsec=np.where(b_pm, xp_b, xp_a)[keep],
+        yp_arcsec=np.where(b_pm, yp_b, yp_a)[keep],
+        ut1_error_s=np.nan_to_num(ut1_err[keep]),
+        pm_error_arcsec=np.nan_to_num(np.fmax(xp_err, yp_err)[keep]),
+        measured=measured,
+    )
+
+
+@functools.lru_cache(maxsize=4)
+def _table(path: str | None = None) -> _Table:
+    if path is None:
+        from astropy_iers_data import IERS_A_FILE
+
+        path = str(IERS_A_FILE)
+    return _parse_finals(path)
+
+
+# ---------------------------------------------------------------------------------------
+# Extrapolation model
+# ---------------------------------------------------------------------------------------
+
+def _pm_design(dt_days: np.ndarray) -> np.ndarray:
+    w_a = 2 * np.pi * dt_days / _ANNUAL_PERIOD_DAYS
+    w_c = 2 * np.pi * dt_days / CHANDLER_PERIOD_DAYS
+    return np.stack([np.ones_like(dt_days), dt_days / 365.25, np.cos(w_a), np.sin(w_a),
+                     np.cos(w_c), np.sin(w_c)], axis=-1)
+
+
+@functools.lru_cache(maxsize=4)
+def _extrapolation_model(table: _Table):
+    """``(ut1_tai_slope_s_per_day, pm_coefficients (6, 2), last_measured_mjd)``."""
+    mjd = table.mjd
+    k = int(np.searchsorted(mjd, mjd[-1] - UT1_TREND_WINDOW_DAYS))
+    slope = (table.ut1_tai_s[-1] - table.ut1_tai_s[k]) / (mjd[-1] - mjd[k])
+    fit = mjd >= mjd[-1] - POLAR_MOTION_FIT_WINDOW_DAYS
+    a = _pm_design(mjd[fit] - mjd[-1])
+    coef, *_ = np.linalg.lstsq(a, np.stack([table.xp_arcsec[fit], table.yp_arcsec[fit]], -1),
+                               rcond=None)
+    last_measured = float(mjd[np.flatnonzero(table.measured)[-1]])
+    return float(slope), coef, last_measured
+
+
+def _extrapolation_errors(table: _Table, mjd):
+    """Estimated (rms) errors ``(dut1_s, polar_motion_arcsec)`` of extrapolated values.
+
+    The table's own error at its last row plus the growth of shipstar's extrapolation
+    error with the days d past that row, calibrated by back-testing the extrapolation
+    on the measured IERS series 1995-2026 (``tests/sky/test_eop.py``):
+    ``UT1: 2.5e-4 s * d + 2e-7 s * d**2``, ``polar motion: 0.045'' * (d / 100)**0.25``
+    (the UT1 formula is the rms of the back-test; the polar motion one bounds it).
+    """
+    days = np.maximum(np.asarray(mjd, float) - table.mjd[-1], 0.0)
+    dut1 = table.ut1_error_s[-1] + UT1_ERROR_S_PER_DAY * days + UT1_ERROR_S_PER_DAY2 * days**2
+    pm = table.pm_error_arcsec[-1] + PM_ERROR_ARCSEC_AT_100_DAYS * (days / 100.0) ** _PM_ERROR_EXPONENT
+    return dut1, pm
+
+
+def _extrapolated_values(table: _Table, mjd):
+    """``(ut1_tai_s, xp_arcsec, yp_arcsec, dut1_error_s, pm_error_arcsec)`` past the end."""
+    slope, coef, _ = _extrapolation_model(table)
+    past = np.asarray(mjd, float) - table.mjd[-1]
+    ut1_tai = table.ut1_tai_s[-1] + slope * past
+    pm = (_pm_design(past) - _pm_design(np.zeros_like(past))) @ coef
+    dut1_err, pm_err = _extrapolation_errors(table, mjd)
+    return (ut1_tai, pm[..., 0] + table.xp_arcsec[-1], pm[..., 1] + table.yp_arcsec[-1],
+            dut1_err, pm_err)
+
+
+def _horizon(table: _Table) -> tuple[float, str]:
+    """Last UTC MJD that is extrapolated, and why extrapolation stops there.
+
+    The earlier of: the estimated UT1 - UTC error reaching :data:`MAX_DUT1_ERROR_S`, and
+    the extrapolated UT1 - UTC reaching +-0.9 s (by then IERS will have scheduled a leap
+    second that shipstar cannot know).
+    """
+    slope, _, _ = _extrapolation_model(table)
+    room = max(MAX_DUT1_ERROR_S - table.ut1_error_s[-1], 0.0)
+    a, b = UT1_ERROR_S_PER_DAY2, UT1_ERROR_S_PER_DAY
+    by_error = float(table.mjd[-1] + (-b + math.sqrt(b * b + 4 * a * room)) / (2 * a))
+    dut1_end = table.ut1_tai_s[-1] + float(tai_minus_utc_s(table.mjd[-1]))
+    if slope != 0.0:
+        by_leap = float(table.mjd[-1] + (math.copysign(0.9, slope) - dut1_end) / slope)
+        if by_leap < by_error:
+            return max(by_leap, float(table.mjd[-1])), (
+                "UT1-UTC would pass 0.9 s there, so a leap second unknown to shipstar "
+                "will have been inserted")
+    return by_error, f"UT1-UTC would be uncertain by more than {MAX_DUT1_ERROR_S} s"
+
+
+def _extrapolate(table: _Table, mjd: float, tai_utc: float) -> EarthOrientation:
+    ut1_tai, xp, yp, dut1_err, pm_err = _extrapolated_values(table, mjd)
+    return EarthOrientation(
+        dut1_s=float(ut1_tai + tai_utc), xp_rad=float(xp * ASEC2RAD), yp_rad=float(yp * ASEC2RAD),
+        quality="extrapolated", dut1_error_s=float(dut1_err),
+        polar_motion_error_rad=float(pm_err * ASEC2RAD),
+    )
+
+
+def _interpolate(table: _Table, mjd: float, tai_utc: float) -> EarthOrientation:
+    # Rows are consecutive days (checked on parsing): the row index is the day number.
+    j = min(max(int(math.floor(mjd - table.mjd[0])), 0), len(table.mjd) - 2)
+    f = mjd - float(table.mjd[j])
+
+    def lin(arr):
+        a = float(arr[j])
+        return a + f * (float(arr[j + 1]) - a)
+
+    both = bool(table.measured[j]) and (bool(table.measured[j + 1]) or f == 0.0)
+    return EarthOrientation(
+        dut1_s=lin(table.ut1_tai_s) + tai_utc, xp_rad=lin(table.xp_arcsec) * ASEC2RAD,
+        yp_rad=lin(table.yp_arcsec) * ASEC2RAD, quality="measured" if both else "predicted",
+        dut1_error_s=lin(table.ut1_error_s), polar_motion_error_rad=lin(table.pm_error_arcsec) * ASEC2RAD,
+    )
+
+
+# ---------------------------------------------------------------------------------------
+# Public API
+# ---------------------------------------------------------------------------------------
+
+def eop_table_info() -> EopTableInfo:
+    """Coverage of the shipped IERS table: first, last measured, last row, horizon."""
+    table = _table()
+    _, _, last_measured = _extrapolation_model(table)
+    return EopTableInfo(
+        source=table.source, first_mjd=float(table.mjd[0]), last_measured_mjd=last_measured,
+        last_mjd=float(table.mjd[-1]), horizon_mjd=_horizon(table)[0],
+        leap_second_expiry_mjd=leap_second_table_expiry_mjd(),
+    )
+
+
+def _date(mjd: float) -> str:
+    return iso_from_utc_jd(2400000.5, mjd, 0)[:10]
+
+
+def earth_orientation(utc_jd1, utc_jd2=0.0) -> EarthOrientation:
+    """UT1 - UTC and polar motion at a UTC time, with their quality and possible error.
+
+    Parameters
+    ----------
+    utc_jd1, utc_jd2 : float
+        Two-part UTC Julian date (as from :func:`shipstar.sky.time.utc_jd_from_iso`).
+
+    Returns
+    -------
+    EarthOrientation
+
+    Warns
+    -----
+    AccuracyWarning
+        Past the table's end (extrapolated values, with their estimated errors), or past
+        the expiry of the leap-second table.
+
+    Raises
+    ------
+    ShipstarError
+        Non-finite time, a time before 1973-01-02, or past the extrapolation horizon.
+    """
+    try:
+        jd1, jd2 = float(utc_jd1), float(utc_jd2)
+    except (TypeError, ValueError):
+        raise ShipstarError(f"time must be a two-part Julian date, got {utc_jd1!r}, {utc_jd2!r}") from None
+    if not (math.isfinite(jd1) and math.isfinite(jd2)):
+        raise ShipstarError(f"time must be finite, got JD {utc_jd1!r} + {utc_jd2!r}")
+    table = _table()
+    mjd = (jd1 - MJD_ZERO_JD) + jd2
+    if mjd < table.mjd[0]:
+        raise ShipstarError(
+            f"time {_date(mjd)} is before the start of the IERS Earth orientation table "
+            f"({_date(table.mjd[0])}): UT1-UTC and polar motion are unknown")
+    tai_utc = float(tai_minus_utc_s(mjd))
+    if mjd <= table.mjd[-1]:
+        eop = _interpolate(table, mjd, tai_utc)
+    else:
+        horizon, why = _horizon(table)
+        if mjd > horizon:
+            raise ShipstarError(
+                f"time {_date(mjd)} is too far past the end of the IERS table "
+                f"({_date(table.mjd[-1])}): shipstar extrapolates Earth orientation only up to "
+                f"{_date(horizon)} ({why}); update astropy-iers-data")
+        eop = _extrapolate(table, mjd, tai_utc)
+        warnings.warn(
+            f"Earth orientation at {_date(mjd)} is extrapolated {mjd - table.mjd[-1]:.0f} days "
+            f"past the IERS table (ends {_date(table.mjd[-1])}): UT1-UTC estimated error "
+            f"{eop.dut1_error_s:.3f} s ({eop.dut1_error_s * _ASEC_PER_S_OF_UT1:.2f} arcsec of "
+            f"azimuth at the equator), polar motion {eop.polar_motion_error_rad * RAD2ASEC:.3f} "
+            "arcsec; update astropy-iers-data for better values",
+            AccuracyWarning, stacklevel=2)
+    expiry = leap_second_table_expiry_mjd()
+    if mjd > expiry:
+        warnings.warn(
+            f"no leap second is known after {_date(expiry)} (expiry of the shipped leap-second "
+            f"table): TAI-UTC = {tai_utc:.0f} s assumed at {_date(mjd)}; a new leap second "
+            "would change UT1-UTC by 1 s", AccuracyWarning, stacklevel=2)
+    return eop
