@@ -21,7 +21,7 @@ import sys
 
 from shipstar.errors import ShipstarError
 
-__all__ = ["main", "build_parser"]
+__all__ = ["main", "build_parser", "OneLineErrorParser"]
 
 EXIT_OK = 0
 EXIT_FAILED = 1      # the job ran but did not succeed (e.g. a frame did not solve)
@@ -35,10 +35,22 @@ def _command_modules():
     return [importlib.import_module(f"shipstar.cli.{n}") for n in names]
 
 
+class OneLineErrorParser(argparse.ArgumentParser):
+    """An ArgumentParser whose usage errors are one line on stderr, exit code 2.
+
+    Sub-parsers made with ``add_subparsers`` inherit the class, so every command and
+    sub-command behaves the same way.
+    """
+
+    def error(self, message: str):  # noqa: D102 - argparse API
+        print(f"{self.prog}: error: {message} (see '{self.prog} --help')", file=sys.stderr)
+        raise SystemExit(EXIT_BAD_INPUT)
+
+
 def build_parser() -> argparse.ArgumentParser:
     from shipstar import __version__
 
-    parser = argparse.ArgumentParser(
+    parser = OneLineErrorParser(
         prog="shipstar",
         description="Ship heading, pitch and roll to arcseconds from star sensor images.",
         epilog="Run 'shipstar COMMAND --help' for a command's options and an example.",

@@ -27,16 +27,6 @@ its quality (measured, predicted, extrapolated) is reported.
 DEFAULT_MAG_LIMIT = 3.0
 
 
-def _one_line_error(parser: argparse.ArgumentParser):
-    """Replace argparse's usage + error output with one line, exit code 2."""
-
-    def error(message: str):
-        print(f"{parser.prog}: error: {message}", file=sys.stderr)
-        raise SystemExit(2)
-
-    return error
-
-
 def _fraction(text: str) -> float:
     value = finite_float(text)
     if not 0.0 <= value <= 1.0:
@@ -50,7 +40,6 @@ def register(subparsers) -> argparse.ArgumentParser:
         description="Observed places of Hipparcos stars in the horizontal frame "
                     "(X north, Y up, Z east) at a UTC time and ship position.",
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.error = _one_line_error(p)
     p.add_argument("--time", required=True, metavar="ISO",
                    help="UTC time, ISO 8601, e.g. 2013-03-15T12:16:00 (optional Z, fractions)")
     p.add_argument("--lat-deg", required=True, type=latitude_deg, help="geodetic latitude (deg)")
