@@ -1,0 +1,44 @@
+"""Attitude from matched vectors (issue 4, item 4).
+
+Wahba solvers, all returning ``C_ref_from_body`` (``v_ref = C @ w_body``) and accepting
+stacks ``(..., N, 3)``:
+
+- :func:`quest` -- QUEST with Newton's iteration ("Quest-Newton", seeds 000/003) and
+  sequential rotations near 180 degrees;
+- :func:`svd_attitude` -- Markley's SVD method;
+- :func:`esoq2` -- Mortari's ESOQ2.
+
+:func:`solve_attitude` is the checked entry point: weights, covariance
+(:func:`attitude_covariance`), iterative outlier rejection, ``solved``/``reason``.
+
+Seed 004's three-star boresight (:func:`boresight_from_three_stars`,
+:func:`boresight_from_three_radii`, :func:`focal_length_from_three_stars`) and its
+error-bound star selection (:func:`three_star_error_bound`, :func:`best_three_stars`).
+
+See docs/attitude.md.
+"""
+
+from __future__ import annotations
+
+from shipstar.attitude._boresight3 import (
+    ThreeStarSolution,
+    boresight_from_three_radii,
+    boresight_from_three_stars,
+    three_star_error_bound,
+)
+from shipstar.attitude._covariance import attitude_covariance, residuals_rad
+from shipstar.attitude._esoq2 import esoq2
+from shipstar.attitude._focal3 import FocalLength, focal_length_from_three_stars
+from shipstar.attitude._quest import quest
+from shipstar.attitude._select3 import BestThree, all_triples, best_three_stars
+from shipstar.attitude._solve import METHODS, AttitudeSolution, solve_attitude
+from shipstar.attitude._svd import svd_attitude
+
+__all__ = [
+    "AttitudeSolution", "solve_attitude", "METHODS",
+    "quest", "svd_attitude", "esoq2",
+    "attitude_covariance", "residuals_rad",
+    "ThreeStarSolution", "boresight_from_three_stars", "boresight_from_three_radii",
+    "FocalLength", "focal_length_from_three_stars",
+    "three_star_error_bound", "BestThree", "best_three_stars", "all_triples",
+]
