@@ -24,6 +24,8 @@ eq. 2 only comes out with these.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = [
@@ -277,6 +279,8 @@ def q_wxyz_from_matrix(C):
     every rotation, including 180 deg.
     """
     C = np.asarray(C, float)
+    if C.shape == (3, 3):
+        return _q_wxyz_one(C)
     tr = C[..., 0, 0] + C[..., 1, 1] + C[..., 2, 2]
     cand = np.stack([tr, C[..., 0, 0], C[..., 1, 1], C[..., 2, 2]], axis=-1)
     k = np.argmax(cand, axis=-1)
@@ -294,6 +298,23 @@ def q_wxyz_from_matrix(C):
                  np.where((k == 1)[..., None], x4, np.where((k == 2)[..., None], y4, z4)))
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     return np.where((q[..., :1] < 0), -q, q)
+
+
+def _q_wxyz_one(C):
+    """Shepperd's method for one matrix in Python floats (~10x faster than the array path)."""
+    (c00, c01, c02), (c10, c11, c12), (c20, c21, c22) = C.tolist()
+    tr = c00 + c11 + c22
+    k = max(range(4), key=(tr, c00, c11, c22).__getitem__)
+    if k == 0:
+        q = (1.0 + tr, c21 - c12, c02 - c20, c10 - c01)
+    elif k == 1:
+        q = (c21 - c12, 1.0 + 2.0 * c00 - tr, c01 + c10, c02 + c20)
+    elif k == 2:
+        q = (c02 - c20, c01 + c10, 1.0 + 2.0 * c11 - tr, c12 + c21)
+    else:
+        q = (c10 - c01, c02 + c20, c12 + c21, 1.0 + 2.0 * c22 - tr)
+    n = math.sqrt(sum(x * x for x in q)) * (1.0 if q[0] >= 0 else -1.0)
+    return np.array([x / n for x in q])
 
 
 def q_wxyz_multiply(p_wxyz, q_wxyz):
