@@ -1,0 +1,129 @@
+"""Reading frames: FITS, PNG, TIFF, JPEG and NumPy ``.npy``, recognised by their first bytes.
+
+Integer data keep their dtype (an 8-bit JPEG stays ``uint8``, a 12-bit frame in a
+16-bit PNG or FITS stays ``uint16``) so that the saturation level can be inferred.
+Colour images become luminance with ITU-R 601 weights (Pillow's ``convert("L")``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from shipstar.errors import ShipstarError
+
+__all__ = ["read_image", "IMAGE_FORMATS"]
+
+IMAGE_FORMATS = ("FITS", "PNG", "TIFF", "JPEG", "NPY")
+
+_MAGIC = (
+    (b"SIMPLE  =", "FITS"),
+    (b"\x1f\x8b", "FITS"),           # gzip: astropy reads .fits.gz
+    (b"\x89PNG\r\n\x1a\n", "PNG"),
+    (b"II*\x00", "TIFF"),
+    (b"MM\x00*", "TIFF"),
+    (b"\xff\xd8\xff", "JPEG"),
+    (b"\x93NUMPY", "NPY"),
+)
+
+
+def _sniff(path: Path) -> str:
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(16)
+    except FileNotFoundError:
+        raise ShipstarError(f"no such file: {path}") from None
+    except IsADirectoryError:
+        raise ShipstarError(f"is a directory, not an image: {path}") from None
+    except OSError as exc:
+        raise ShipstarError(f"cannot read {path}: {exc.strerror or exc}") from None
+    for magic, kind in _MAGIC:
+        if head.startswith(magic):
+            return kind
+    raise ShipstarError(f"{path} is not an image file ({', '.join(IMAGE_FORMATS)})")
+
+
+def _read_fits(path: Path) -> np.ndarray:
+    import warnings
+
+    from astropy.io import fits
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")             # header-verification chatter; errors still raise
+            with fits.open(path, memmap=False) as hdul:
+                for hdu in hdul:
+                    data = getattr(hdu, "data", None)
+                    if isinstance(data, np.ndarray) and data.ndim >= 2 and data.dtype.fields is None:
+                        return np.array(data)
+    except (OSError, ValueError, TypeError, IndexError, KeyError, EOFError) as exc:
+        raise ShipstarError(f"corrupt or unreadable FITS file {path}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+    raise ShipstarError(f"FITS file {path} has no 2-D image HDU")
+
+
+def _read_pillow(path: Path, kind: str) -> np.ndarray:
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            im.load()
+            if getattr(im, "n_frames", 1) > 1:
+                raise ShipstarError(f"{path} holds {im.n_frames} frames; give one frame per file")
+            if im.mode in ("L", "I;16", "I;16B", "I;16L", "I", "F"):
+                arr = np.array(im)
+            else:
+                arr = np.array(im.convert("L"))
+    except ShipstarError:
+        raise
+    except (OSError, ValueError, UnidentifiedImageError, SyntaxError) as exc:
+        raise ShipstarError(f"corrupt or unreadable {kind} file {path}: {exc}") from None
+    return arr
+
+
+def _read_npy(path: Path) -> np.ndarray:
+    try:
+        return np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError) as exc:
+        raise ShipstarError(f"corrupt or unreadable .npy file {path}: {exc}") from None
+
+
+def read_image(path) -> np.ndarray:
+    """Read one frame as a 2-D array (height, width).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A FITS (first HDU with 2-D data; a 3-D cube only if it has one plane), PNG, TIFF,
+        JPEG or ``.npy`` file. The format is recognised from the file's first bytes.
+
+    Returns
+    -------
+    (H, W) array in native byte order: integer files keep their dtype, colour becomes
+    luminance (``uint8`` for 8-bit colour).
+
+    Raises
+    ------
+    ShipstarError
+        Missing file, unknown format, corrupt content, or not a single 2-D image.
+    """
+    path = Path(path)
+    kind = _sniff(path)
+    if kind == "FITS":
+        arr = _read_fits(path)
+    elif kind == "NPY":
+        arr = _read_npy(path)
+    else:
+        arr = _read_pillow(path, kind)
+    if arr.ndim > 2:
+        squeezed = arr.reshape(arr.shape[-2:]) if int(np.prod(arr.shape[:-2])) == 1 else arr
+        if squeezed.ndim != 2:
+            raise ShipstarError(f"{path} holds an array of shape {arr.shape}, not one 2-D image")
+        arr = squeezed
+    if arr.ndim != 2:
+        raise ShipstarError(f"{path} holds an array of shape {arr.shape}, not a 2-D image")
+    if arr.dtype.kind not in "uif":
+        raise ShipstarError(f"{path} holds {arr.dtype} data, not an image")
+    if not arr.dtype.isnative:
+        arr = arr.astype(arr.dtype.newbyteorder("="))
+    return arr

@@ -1,0 +1,331 @@
+"""Star extraction against simulated frames with known truth and the Cramer-Rao bound.
+
+The bound is computed here, independently of shipstar: the Fisher information of the
+pixel-integrated Gaussian PSF for the unknowns (x, y, flux, background), with Poisson
+noise plus read noise and ADC quantisation as Gaussian variance.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.special import erf
+
+from shipstar.camera import camera_preset
+from shipstar.errors import ShipstarError
+from shipstar.extract import (
+    FLAG_EDGE,
+    FLAG_ELONGATED,
+    FLAG_SATURATED,
+    Extraction,
+    extract_stars,
+    flag_names,
+    read_image,
+)
+from shipstar.simulate._render import FalseObjects, render_frame, star_signal_e
+
+A1 = camera_preset("A1")
+REAL_IMAGES = Path("/work/shared/real-images")
+
+
+def cramer_rao_px(camera, signal_e, phase_xy, half=10):
+    """(bound on x, bound on y, flux SNR) of one star: Fisher information, 4 unknowns."""
+    s = camera.psf_sigma_px
+    edges = np.arange(-half, half + 2) - 0.5
+
+    def profile(c):
+        u = edges - c
+        cdf = 0.5 * erf(u / (math.sqrt(2) * s))
+        pdf = np.exp(-0.5 * (u / s) ** 2) / (math.sqrt(2 * math.pi) * s)
+        return np.diff(cdf), -np.diff(pdf)
+
+    ex, dex = profile(phase_xy[0])
+    ey, dey = profile(phase_xy[1])
+    bg_e = (camera.sky_e_per_px_per_s + camera.dark_e_per_s) * camera.exposure_s
+    mu = bg_e + signal_e * np.outer(ey, ex)
+    var = mu + camera.read_noise_e ** 2 + camera.gain_e_per_adu ** 2 / 12.0
+    jac = np.stack([signal_e * np.outer(ey, dex), signal_e * np.outer(dey, ex), np.outer(ey, ex),
+                    np.ones_like(mu)], axis=-1).reshape(-1, 4)
+    cov = np.linalg.inv(jac.T @ (jac / var.reshape(-1)[:, None]))
+    return math.sqrt(cov[0, 0]), math.sqrt(cov[1, 1]), signal_e / math.sqrt(cov[2, 2])
+
+
+def grid_frame(camera, mag, phase, seed, spacing=24):
+    """A frame of identical stars on a grid (all at the same sub-pixel phase)."""
+    g = np.arange(20, camera.width_px - 20, spacing, dtype=float)
+    xy = np.stack(np.meshgrid(g, g), axis=-1).reshape(-1, 2) + phase
+    signal = star_signal_e(camera, np.full(len(xy), mag))
+    image = render_frame(camera, xy, signal, np.random.default_rng(seed), hot_pixel_fraction=0.0)
+    return image, xy, signal[0]
+
+
+def match(found_xy, true_xy, radius_px=1.0):
+    """Index of the true star nearest to each found one, and whether it is within radius."""
+    d2 = ((found_xy[:, None, :] - true_xy[None, :, :]) ** 2).sum(axis=2)
+    j = np.argmin(d2, axis=1)
+    return j, d2[np.arange(len(j)), j] <= radius_px ** 2
+
+
+# ---------------------------------------------------------------- accuracy: the bound
+
+@pytest.mark.slow
+@pytest.mark.parametrize("mag", [2.5, 5.0, 7.0, 8.0, 8.7])
+@pytest.mark.parametrize("phase", [(0.0, 0.0), (0.25, 0.1), (0.5, 0.5), (0.37, -0.42)])
+def test_centroids_are_unbiased_and_within_15_percent_of_the_cramer_rao_bound(mag, phase):
+    image, xy, signal = grid_frame(A1, mag, phase, seed=int(10 * mag) + int(100 * phase[0]))
+    crb_x, crb_y, snr = cramer_rao_px(A1, signal, phase)
+    assert snr >= 10.0                                          # the grid stays in the SNR >= 10 regime
+    result = extract_stars(image)
+    j, ok = match(result.xy_px, xy)
+    assert ok.sum() >= 0.99 * len(xy) and len(set(j[ok])) == ok.sum()
+    err = result.xy_px[ok] - xy[j[ok]]
+    bias = err.mean(axis=0)
+    rms = np.sqrt(((err - bias) ** 2).mean(axis=0))
+    assert np.all(np.abs(bias) < 0.01), f"bias {bias} px"
+    assert rms[0] / crb_x <= 1.15 and rms[1] / crb_y <= 1.15, f"rms/bound {rms[0] / crb_x:.3f}, {rms[1] / crb_y:.3f}"
+    # the predicted errors follow the bound (gain and PSF sigma are estimated from the frame:
+    # poorly when every star is faint)
+    predicted = np.median(result.xy_sigma_px[ok])
+    assert predicted == pytest.approx(math.hypot(crb_x, crb_y) / math.sqrt(2), rel=0.25 if snr > 15 else 0.5)
+
+
+def test_psf_sigma_and_given_camera_parameters():
+    image, xy, _ = grid_frame(A1, 6.0, (0.3, 0.2), seed=5, spacing=40)
+    fitted = extract_stars(image)
+    assert fitted.psf_sigma_px == pytest.approx(A1.psf_sigma_px, rel=0.05)
+    given = extract_stars(image, psf_sigma_px=A1.psf_sigma_px, gain_e_per_adu=A1.gain_e_per_adu)
+    assert given.psf_sigma_px == A1.psf_sigma_px
+    j1, ok1 = match(fitted.xy_px, xy)
+    j2, ok2 = match(given.xy_px, xy)
+    assert ok1.all() and ok2.all() and len(fitted) == len(given) == len(xy)
+    e1 = np.sqrt(np.mean((fitted.xy_px - xy[j1]) ** 2))
+    e2 = np.sqrt(np.mean((given.xy_px - xy[j2]) ** 2))
+    assert e1 == pytest.approx(e2, rel=0.1)
+
+
+def test_centre_of_gravity_option_is_coarser_but_close():
+    image, xy, signal = grid_frame(A1, 6.0, (0.3, 0.2), seed=6, spacing=40)
+    crb_x, _, _ = cramer_rao_px(A1, signal, (0.3, 0.2))
+    cog = extract_stars(image, refine="none")
+    j, ok = match(cog.xy_px, xy)
+    assert ok.all() and len(cog) == len(xy)
+    err = cog.xy_px - xy[j]
+    assert np.all(np.abs(err.mean(axis=0)) < 0.05)              # thresholded centroids are pulled to pixel centres
+    assert np.sqrt(np.mean(err ** 2)) < 2.5 * crb_x
+    assert not np.any(cog.flags & 4)                            # no fit, so no fit failure
+
+
+# ---------------------------------------------------------------- detection
+
+def a1_scene(seed, n=40, **false):
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(12, 1012, size=(n, 2))
+    mag = rng.uniform(3.0, 7.5, n)
+    image = render_frame(A1, xy, star_signal_e(A1, mag), rng, false_objects=FalseObjects(**false))
+    return image, xy, mag
+
+
+def test_finds_every_star_of_an_a1_frame_and_nothing_else():
+    image, xy, mag = a1_scene(11, cosmic_ray_count=6)
+    result = extract_stars(image)
+    j, ok = match(result.xy_px, xy)
+    close = np.linalg.norm(xy[:, None] - xy[None], axis=2) + 1e9 * np.eye(len(xy))
+    separable = close.min(axis=1) > 6.0
+    assert set(np.flatnonzero(separable)) <= set(j[ok])
+    assert ok.all(), f"{np.sum(~ok)} false detections"
+    assert np.all(np.diff(result.flux_adu) <= 0)                 # brightest first
+    assert result.background_adu == pytest.approx(A1.bias_adu + 19.5 / 25.0, abs=0.6)
+    assert result.noise_adu == pytest.approx(math.sqrt(19.5 + 400 + 625 / 12) / 25.0, rel=0.1)
+
+
+def test_hot_pixels_and_cosmic_rays_are_not_stars():
+    hot = render_frame(A1, np.zeros((0, 2)), [], np.random.default_rng(3), hot_pixel_fraction=2e-4,
+                       hot_pixel_e_per_s=5e4)
+    assert np.count_nonzero(hot > A1.bias_adu + 20) > 100        # plenty of bright hot pixels
+    assert len(extract_stars(hot)) == 0
+    # cosmic rays hit 1-3 pixels: sharper than the PSF (given here, as no star shows it)
+    rays = render_frame(A1, np.zeros((0, 2)), [], np.random.default_rng(4), hot_pixel_fraction=0.0,
+                        false_objects=FalseObjects(cosmic_ray_count=40, cosmic_ray_e=5000.0))
+    assert np.count_nonzero(rays > A1.bias_adu + 20) > 40
+    assert len(extract_stars(rays, psf_sigma_px=A1.psf_sigma_px)) == 0
+
+
+def test_max_stars_keeps_the_brightest():
+    image, xy, mag = a1_scene(12)
+    full = extract_stars(image)
+    top = extract_stars(image, max_stars=5)
+    assert len(top) == 5
+    np.testing.assert_array_equal(top.xy_px, full.xy_px[:5])
+
+
+# ---------------------------------------------------------------- flags
+
+def test_flags_saturated_edge_and_elongated():
+    xy = np.array([[300.0, 300.0], [1.2, 500.0], [700.0, 700.0]])
+    signal = np.array([5e7, 3e4, 3e4])
+    fo = FalseObjects(trail_xy_px=[[[100.0, 800.0], [160.0, 840.0]]], trail_signal_e=[4e5])
+    image = render_frame(A1, xy, signal, np.random.default_rng(8), hot_pixel_fraction=0.0, false_objects=fo)
+    result = extract_stars(image)
+    names = {}
+    for (x, y), flags in zip(result.xy_px, result.flags):
+        names[(round(x / 50), round(y / 50))] = flag_names(flags)
+    assert "saturated" in names[(6, 6)]
+    assert "edge" in names[(0, 10)]
+    assert names[(14, 14)] == []
+    trail = [n for (kx, ky), n in names.items() if 1 <= kx <= 4 and 15 <= ky <= 17]
+    assert trail and all("elongated" in n for n in trail)
+    sat = np.flatnonzero(result.flags & FLAG_SATURATED)
+    assert len(sat) == 1 and result.peak_adu[sat[0]] == A1.adc_max_adu
+    assert np.isnan(result.xy_sigma_px[sat[0]])
+    assert np.linalg.norm(result.xy_px[sat[0]] - [300.0, 300.0]) < 0.1
+    edge = np.flatnonzero(result.flags & FLAG_EDGE)
+    assert np.linalg.norm(result.xy_px[edge] - [1.2, 500.0], axis=1).min() < 0.2
+    assert FLAG_ELONGATED in {int(f) & FLAG_ELONGATED for f in result.flags}
+
+
+# ---------------------------------------------------------------- empty and bad frames
+
+def test_an_empty_sky_gives_zero_stars_not_an_error():
+    image = render_frame(A1, np.zeros((0, 2)), [], np.random.default_rng(4), hot_pixel_fraction=0.0)
+    result = extract_stars(image)
+    assert isinstance(result, Extraction) and len(result) == 0
+    assert result.xy_px.shape == (0, 2) and result.flags.shape == (0,)
+    assert math.isnan(result.psf_sigma_px)
+    flat = extract_stars(np.full((64, 64), 100, dtype=np.uint16))
+    assert len(flat) == 0 and flat.noise_adu > 0
+
+
+@pytest.mark.parametrize("image, match_text", [
+    (np.zeros((64, 64, 3), dtype=np.uint8), "2-D"),
+    (np.zeros(100), "2-D"),
+    (np.zeros((64, 64), dtype=bool), "dtype"),
+    (np.zeros((64, 64), dtype=complex), "dtype"),
+    (np.zeros((8, 64)), "at least"),
+    (np.full((64, 64), np.nan), "non-finite"),
+    (np.full((64, 64), 4095, dtype=np.uint16), "overexposed"),
+    (np.full((64, 64), 255, dtype=np.uint8), "overexposed"),
+])
+def test_bad_frames_raise_one_line_errors(image, match_text):
+    with pytest.raises(ShipstarError, match=match_text) as info:
+        extract_stars(image)
+    assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("kwargs, match_text", [
+    (dict(threshold_sigma=0.5), "threshold_sigma"),
+    (dict(threshold_sigma=float("nan")), "threshold_sigma"),
+    (dict(max_stars=0), "max_stars"),
+    (dict(refine="moffat"), "refine"),
+    (dict(psf_sigma_px=-1.0), "psf_sigma_px"),
+    (dict(gain_e_per_adu=0.0), "gain_e_per_adu"),
+    (dict(saturation_adu=float("inf")), "saturation_adu"),
+])
+def test_bad_options_raise(kwargs, match_text):
+    with pytest.raises(ShipstarError, match=match_text):
+        extract_stars(np.zeros((64, 64), dtype=np.uint16), **kwargs)
+
+
+def test_big_endian_and_float_frames_give_the_same_stars():
+    image, xy, _ = a1_scene(13, n=10)
+    ref = extract_stars(image)
+    for variant in (image.astype(">u2"), image.astype(np.float32), image.astype(np.int32)):
+        other = extract_stars(variant, saturation_adu=4095)
+        np.testing.assert_allclose(other.xy_px, ref.xy_px, atol=1e-6)
+
+
+# ---------------------------------------------------------------- reading files
+
+def _frame():
+    image, _, _ = a1_scene(14, n=12)
+    return image
+
+
+def test_read_fits_png_tiff_npy_round_trip(tmp_path):
+    from astropy.io import fits
+    from PIL import Image
+
+    image = _frame()
+    fits.PrimaryHDU(image).writeto(tmp_path / "f.fits")             # uint16: BZERO = 32768
+    Image.fromarray(image).save(tmp_path / "f.png")
+    Image.fromarray(image).save(tmp_path / "f.tif")
+    np.save(tmp_path / "f.npy", image)
+    for name in ("f.fits", "f.png", "f.tif", "f.npy"):
+        back = read_image(tmp_path / name)
+        assert back.dtype == np.uint16 and back.dtype.isnative, name
+        np.testing.assert_array_equal(back, image, err_msg=name)
+    assert len(extract_stars(read_image(tmp_path / "f.fits"))) == len(extract_stars(image))
+
+
+def test_read_fits_extension_cube_and_float(tmp_path):
+    from astropy.io import fits
+
+    data = np.arange(64 * 48, dtype=np.float32).reshape(48, 64)
+    fits.HDUList([fits.PrimaryHDU(), fits.ImageHDU(data[None])]).writeto(tmp_path / "ext.fits")
+    back = read_image(tmp_path / "ext.fits")
+    assert back.shape == (48, 64) and back.dtype == np.float32
+    np.testing.assert_array_equal(back, data)
+    fits.PrimaryHDU(np.zeros((2, 8, 8))).writeto(tmp_path / "cube.fits")
+    with pytest.raises(ShipstarError, match="not one 2-D image"):
+        read_image(tmp_path / "cube.fits")
+    table = fits.BinTableHDU.from_columns([fits.Column(name="a", format="E", array=np.zeros(3))])
+    fits.HDUList([fits.PrimaryHDU(), table]).writeto(tmp_path / "table.fits")
+    with pytest.raises(ShipstarError, match="no 2-D image"):
+        read_image(tmp_path / "table.fits")
+
+
+def test_read_colour_jpeg_and_png_as_luminance(tmp_path):
+    from PIL import Image
+
+    rgb = np.zeros((40, 50, 3), dtype=np.uint8)
+    rgb[..., 0], rgb[..., 1], rgb[..., 2] = 200, 100, 50
+    Image.fromarray(rgb).save(tmp_path / "c.png")
+    Image.fromarray(rgb).save(tmp_path / "c.jpg", quality=95)
+    lum = 0.299 * 200 + 0.587 * 100 + 0.114 * 50                     # ITU-R 601
+    for name in ("c.png", "c.jpg"):
+        back = read_image(tmp_path / name)
+        assert back.shape == (40, 50) and back.dtype == np.uint8
+        assert np.abs(back.astype(float) - lum).max() <= 2.0, name
+    Image.fromarray(rgb[..., 0]).save(tmp_path / "g.jpg")
+    assert read_image(tmp_path / "g.jpg").dtype == np.uint8
+
+
+def test_unreadable_files_raise_one_line_errors(tmp_path):
+    (tmp_path / "notes.txt").write_text("not an image\n")
+    (tmp_path / "bad.fits").write_bytes(b"SIMPLE  =                    T" + b" " * 50 + b"garbage")
+    (tmp_path / "bad.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"\x00" * 40)
+    np.save(tmp_path / "rgb.npy", np.zeros((4, 5, 3)))
+    np.save(tmp_path / "text.npy", np.array(["a", "b"]))
+    cases = [("notes.txt", "not an image file"), ("bad.fits", "FITS"), ("bad.png", "PNG"),
+             ("rgb.npy", "not one 2-D image"), ("text.npy", "not"), ("missing.fits", "no such file"),
+             (".", "directory")]
+    for name, text in cases:
+        with pytest.raises(ShipstarError, match=text) as info:
+            read_image(tmp_path / name)
+        assert "\n" not in str(info.value), name
+
+
+# ---------------------------------------------------------------- real photographs
+
+# (min, max) star counts, checked by eye on overlays of the detections: JPEG artefacts,
+# vignetting, trees and a roof must not turn into hundreds of false stars.
+REAL_COUNTS = {
+    "crappy.jpg": (30, 90), "orion2.jpg": (60, 200), "orion_belt.jpg": (40, 130),
+    "orion_trees.jpg": (40, 140), "pleiades.jpg": (35, 110), "roof.jpg": (15, 60),
+    "test2_g100_e50ms.jpg": (50, 150), "virgo.jpg": (25, 90),
+}
+
+
+@pytest.mark.skipif(not REAL_IMAGES.is_dir(), reason="shared real images not present")
+@pytest.mark.parametrize("name", sorted(REAL_COUNTS))
+def test_real_photographs(name):
+    image = read_image(REAL_IMAGES / name)
+    result = extract_stars(image)
+    lo, hi = REAL_COUNTS[name]
+    assert lo <= len(result) <= hi
+    assert 0.5 < result.psf_sigma_px < 2.5
+    good = np.flatnonzero(result.flags == 0)[:10]
+    assert len(good) == 10 and np.all(result.xy_sigma_px[good] < 0.5)   # detected at >= 5 sigma
+    assert np.all((result.xy_px >= -0.5) & (result.xy_px <= np.array(image.shape[::-1]) - 0.5))
