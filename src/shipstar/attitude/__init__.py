@@ -15,6 +15,10 @@ Seed 004's three-star boresight (:func:`boresight_from_three_stars`,
 :func:`boresight_from_three_radii`, :func:`focal_length_from_three_stars`) and its
 error-bound star selection (:func:`three_star_error_bound`, :func:`best_three_stars`).
 
+Sensor attitude in the local horizontal frame from identified stars, with per-star
+(or seed 000 ref. [9] boresight-only) refraction: :func:`sensor_attitude_hor`,
+:func:`sensor_attitude_hor_from_catalog` (seed 000 eq. 6-16).
+
 See docs/attitude.md.
 """
 
@@ -28,6 +32,12 @@ from shipstar.attitude._boresight3 import (
 )
 from shipstar.attitude._covariance import attitude_covariance, residuals_rad
 from shipstar.attitude._esoq2 import esoq2
+from shipstar.attitude._horizontal import (
+    REFRACTION_MODES,
+    HorizontalAttitude,
+    sensor_attitude_hor,
+    sensor_attitude_hor_from_catalog,
+)
 from shipstar.attitude._focal3 import FocalLength, focal_length_from_three_stars
 from shipstar.attitude._quest import quest
 from shipstar.attitude._select3 import BestThree, all_triples, best_three_stars
@@ -41,4 +51,5 @@ __all__ = [
     "ThreeStarSolution", "boresight_from_three_stars", "boresight_from_three_radii",
     "FocalLength", "focal_length_from_three_stars",
     "three_star_error_bound", "BestThree", "best_three_stars", "all_triples",
+    "HorizontalAttitude", "sensor_attitude_hor", "sensor_attitude_hor_from_catalog", "REFRACTION_MODES",
 ]

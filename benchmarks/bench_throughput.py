@@ -1,0 +1,165 @@
+"""Throughput of the whole chain, image -> ship attitude, on one core.
+
+Frames: an image-level at-sea session of the seed's two sensors (``simulate-session
+--kind sea``: 1024x1024 12-bit FITS, 10 ms exposures, A2 30 ms after A1), written once to
+a temporary (or given) directory.  The chain per frame, as ``shipstar measure`` runs it
+(``pipeline.process_session``): read FITS header (DATE-OBS) and data -> extract_stars ->
+identify (lost-in-space on the first frame, tracking after) -> FrameContext (erfa.apco13)
+-> apparent places + per-star refraction -> QUEST attitude in the horizontal frame ->
+ship attitude; then pairing, motion compensation and both fusions.
+
+Printed: the time per frame of the whole chain (header scan and fusion included), as
+frames per second of one sensor's chain on one core and of both sensors sharing one
+core, their ratios to the real system's 10 frames/s per sensor (seeds 000, 003; target
+>= 5x, i.e. >= 50 frames/s per sensor), and a profile of where the time goes.  The
+machine is shared: run it when it is quiet (``uptime``), the best of ``--repeat`` runs
+is taken.  Anchor for the dominant stage: sep
+(``sep.Background`` + ``sep.extract``, C code) extracting the same frames, timed in the
+same run; its ratio to shipstar's extraction is printed.  Threads are limited to one
+(``OMP_NUM_THREADS`` etc. set before NumPy loads).
+
+Run: ``python benchmarks/bench_throughput.py [--frames N] [--dir DIR] [--repeat R]``.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import cProfile  # noqa: E402
+import pstats  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from dataclasses import replace  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+REAL_SYSTEM_FPS = 10.0
+STAGES = {  # profile entry -> label
+    "read_fits_frame": "read FITS (data)",
+    "scan_frames": "read FITS headers (DATE-OBS)",
+    "extract_stars": "extract stars",
+    "_identify": "identify (tracking)",
+    "frame_context": "FrameContext (apco13)",
+    "hor": "apparent places",
+    "sensor_attitude_hor": "refraction + attitude",
+    "_ship": "ship attitude",
+    "build_epochs": "pairing + fusion",
+}
+
+
+def make_session(directory: Path, frames: int) -> None:
+    from shipstar.calibrate.installation import Installation, save_installation
+    from shipstar.simulate._session import sea_session, write_session
+
+    spec = sea_session(duration_s=frames / 10.0)
+    spec = spec.replace(sensors=(spec.sensors[0], replace(spec.sensors[1], time_offset_s=0.03)))
+    t0 = time.perf_counter()
+    write_session(spec, directory)
+    for s in spec.sensors:
+        save_installation(Installation.from_matrix(s.name, s.camera.name, s.C_deck_from_sensor),
+                          directory / f"{s.name}.toml")
+    print(f"rendered {2 * frames} frames in {time.perf_counter() - t0:.1f} s into {directory}")
+
+
+def run_chain(directory: Path):
+    from shipstar.calibrate.installation import load_installation
+    from shipstar.camera import load_camera
+    from shipstar.pipeline import SensorConfig, Track, WeatherTable, process_session, scan_frames
+
+    configs = []
+    for name in ("A1", "A2"):
+        inst = load_installation(directory / f"{name}.toml")
+        configs.append(SensorConfig(name, load_camera(inst.camera), inst))
+    frames = [scan_frames(directory / c.name) for c in configs]
+    return process_session(configs, frames, Track.read_csv(directory / "track.csv"),
+                           WeatherTable.read_csv(directory / "weather.csv"))
+
+
+def time_chain(directory: Path, repeat: int):
+    best, result = np.inf, None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        result = run_chain(directory)
+        best = min(best, time.perf_counter() - t0)
+    return best, result
+
+
+def profile(directory: Path):
+    prof = cProfile.Profile()
+    prof.enable()
+    run_chain(directory)
+    prof.disable()
+    stats = pstats.Stats(prof).stats
+    total = sum(v[2] for v in stats.values())
+    out = {}
+    for (filename, _, func), (_, _, _, cum, _) in stats.items():
+        if func in STAGES and "shipstar" in filename:
+            out[STAGES[func]] = out.get(STAGES[func], 0.0) + cum
+    return out, total
+
+
+def time_sep(directory: Path):
+    try:
+        import sep
+    except ImportError:
+        return None
+    from shipstar.extract import extract_stars
+    from shipstar.pipeline import read_fits_frame
+
+    images = [read_fits_frame(p)[0] for p in sorted((directory / "A1").glob("*.fits"))]
+    t0 = time.perf_counter()
+    for img in images:
+        extract_stars(img, psf_sigma_px=0.8, gain_e_per_adu=25.0)
+    t_ship = (time.perf_counter() - t0) / len(images)
+    t0 = time.perf_counter()
+    for img in images:
+        data = img.astype(np.float64)
+        bkg = sep.Background(data)
+        sep.extract(data - bkg, 5.0, err=bkg.globalrms, minarea=3)
+    t_sep = (time.perf_counter() - t0) / len(images)
+    return t_ship, t_sep
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=30, help="frames per sensor to render (default 30)")
+    ap.add_argument("--dir", type=Path, help="reuse / keep the session here (default: a temporary directory)")
+    ap.add_argument("--repeat", type=int, default=3, help="timed runs; the best is reported")
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        directory = args.dir or Path(tmp) / "sea"
+        if not (directory / "session.toml").exists():
+            make_session(directory, args.frames)
+        run_chain(directory)                                  # warm-up: database, catalog, caches
+        best, result = time_chain(directory, args.repeat)
+        n = [len(f) for f in result.frames]
+        solved = [sum(fr.solved for fr in f) for f in result.frames]
+        per_frame_s = best / sum(n)
+        fps_one = 1.0 / per_frame_s                       # one sensor's chain on one core
+        fps_shared = fps_one / len(n)                     # every sensor's chain sharing one core
+        print(f"\nwhole chain: {sum(n)} frames ({n[0]} per sensor, {solved} solved) in {best:.3f} s (best of "
+              f"{args.repeat}) = {1e3 * per_frame_s:.1f} ms per frame")
+        print(f"  one sensor's frames on one core : {fps_one:6.1f} frames/s = {fps_one / REAL_SYSTEM_FPS:4.1f}x "
+              f"the real system's {REAL_SYSTEM_FPS:g} frames/s (target >= 5x: "
+              f"{'PASS' if fps_one >= 5 * REAL_SYSTEM_FPS else 'FAIL'})")
+        print(f"  both sensors sharing one core   : {fps_shared:6.1f} frames/s per sensor = "
+              f"{fps_shared / REAL_SYSTEM_FPS:4.1f}x real time")
+        stages, total = profile(directory)
+        print(f"\nprofile (cProfile, cumulative; total {1e3 * total / sum(n):.1f} ms per frame under the profiler):")
+        for label in STAGES.values():
+            if label in stages:
+                print(f"  {label:32s} {1e3 * stages[label] / sum(n):6.2f} ms/frame  {100 * stages[label] / total:5.1f} %")
+        sep_times = time_sep(directory)
+        if sep_times is not None:
+            t_ship, t_sep = sep_times
+            print(f"\nanchor, extraction of the same frames: shipstar {1e3 * t_ship:.2f} ms, sep {1e3 * t_sep:.2f} ms "
+                  f"per frame (sep/shipstar = {t_sep / t_ship:.2f})")
+
+
+if __name__ == "__main__":
+    main()

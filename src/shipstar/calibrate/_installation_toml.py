@@ -1,0 +1,189 @@
+"""Installation TOML files (docs/file-formats.md): :func:`save_installation`, :func:`load_installation`."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+from shipstar.errors import ShipstarError
+from shipstar.units import DEG2RAD, RAD2DEG
+
+__all__ = ["save_installation", "load_installation", "FORMAT_NAME", "FORMAT_VERSION"]
+
+FORMAT_NAME = "shipstar-installation"
+FORMAT_VERSION = 1
+
+_AXES = ("az", "el", "roll")
+_TOP_FLOATS = ("az_deg", "el_deg", "roll_deg") + tuple(f"std_{a}_arcsec" for a in _AXES) \
+    + tuple(f"sem_{a}_arcsec" for a in _AXES)
+_TOP_INTS = ("n_frames", "n_used", "n_failed", "n_rejected")
+_TOP_STRS = ("format", "sensor", "camera", "session", "date_utc")
+_DOCK_FLOATS = ("heading_deg", "pitch_deg", "roll_deg", "lat_deg", "lon_deg", "height_m", "pressure_hpa",
+                "temperature_c")
+_DOCK_STRS = ("refraction_model", "refraction_mode")
+
+_HEADER = """\
+# shipstar installation calibration of one star sensor (docs/calibration-dock.md)
+# C_deck_from_sensor = R_y(az) R_z(-el) R_x(-roll)   (seed 000 eq. 2, docs/conventions.md)
+# az: boresight azimuth from the bow toward starboard; el: above the deck; roll: about the boresight.
+# std_*: per-frame standard deviation over the session; sem_*: standard error of the mean.
+"""
+
+
+def _f(x) -> str:
+    x = float(x)
+    if math.isnan(x):
+        return "nan"
+    if math.isinf(x):
+        return "inf" if x > 0 else "-inf"
+    return repr(x)
+
+
+def _s(text) -> str:
+    return json.dumps(str(text), ensure_ascii=False)
+
+
+def _render(inst) -> str:
+    lines = [_HEADER.rstrip("\n"), f"format = {_s(FORMAT_NAME)}", f"format_version = {FORMAT_VERSION}",
+             f"sensor = {_s(inst.sensor)}", f"camera = {_s(inst.camera)}", f"session = {_s(inst.session)}",
+             f"date_utc = {_s(inst.date_utc)}", "",
+             f"az_deg = {_f(inst.az_rad * RAD2DEG)}", f"el_deg = {_f(inst.el_rad * RAD2DEG)}",
+             f"roll_deg = {_f(inst.roll_rad * RAD2DEG)}"]
+    for prefix, values in (("std", inst.std_arcsec), ("sem", inst.sem_arcsec)):
+        lines += [f"{prefix}_{a}_arcsec = {_f(v)}" for a, v in zip(_AXES, values)]
+    lines += [f"{k} = {int(getattr(inst, k))}" for k in _TOP_INTS]
+    d = inst.dock
+    if d is not None:
+        lines += ["", "[dock]", f"heading_deg = {_f(d.heading_rad * RAD2DEG)}",
+                  f"pitch_deg = {_f(d.pitch_rad * RAD2DEG)}", f"roll_deg = {_f(d.roll_rad * RAD2DEG)}",
+                  f"lat_deg = {_f(d.lat_rad * RAD2DEG)}", f"lon_deg = {_f(d.lon_rad * RAD2DEG)}",
+                  f"height_m = {_f(d.height_m)}", f"pressure_hpa = {_f(d.pressure_hpa)}",
+                  f"temperature_c = {_f(d.temperature_c)}", f"refraction_model = {_s(d.refraction_model)}",
+                  f"refraction_mode = {_s(d.refraction_mode)}"]
+    return "\n".join(lines) + "\n"
+
+
+def save_installation(inst, path) -> None:
+    """Write an :class:`~shipstar.calibrate.installation.Installation` as TOML.
+
+    Written to a temporary file in the same directory and renamed, so a crash never
+    leaves a half-written file that looks complete.
+    """
+    import os
+    import tempfile
+
+    path = Path(path)
+    text = _render(inst)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _read_toml(path: Path) -> dict:
+    import tomllib
+
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise ShipstarError(f"no such installation file: {path}") from None
+    except IsADirectoryError:
+        raise ShipstarError(f"installation file {path} is a directory") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ShipstarError(f"installation file {path} is not valid TOML: {exc}") from None
+    except UnicodeDecodeError:
+        raise ShipstarError(f"installation file {path} is not UTF-8 text") from None
+
+
+def _check_keys(table: dict, allowed: tuple, where: str, path: Path) -> None:
+    unknown = sorted(set(table) - set(allowed))
+    if unknown:
+        raise ShipstarError(f"installation file {path}: unknown key {where}{unknown[0]!r}")
+
+
+def _number(table: dict, key: str, where: str, path: Path, *, required: bool, finite: bool) -> float:
+    if key not in table:
+        if required:
+            raise ShipstarError(f"installation file {path}: missing {where}{key}")
+        return math.nan
+    value = table[key]
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ShipstarError(f"installation file {path}: {where}{key} must be a number, got {value!r}")
+    if finite and not math.isfinite(value):
+        raise ShipstarError(f"installation file {path}: {where}{key} must be finite, got {value!r}")
+    return float(value)
+
+
+def _text(table: dict, key: str, where: str, path: Path, *, required: bool) -> str:
+    if key not in table:
+        if required:
+            raise ShipstarError(f"installation file {path}: missing {where}{key}")
+        return ""
+    value = table[key]
+    if not isinstance(value, str):
+        raise ShipstarError(f"installation file {path}: {where}{key} must be a string, got {value!r}")
+    return value
+
+
+def _dock(table, path: Path):
+    from shipstar.calibrate._installation_model import DockConditions
+
+    if not isinstance(table, dict):
+        raise ShipstarError(f"installation file {path}: [dock] must be a table")
+    _check_keys(table, _DOCK_FLOATS + _DOCK_STRS, "dock.", path)
+    num = {k: _number(table, k, "dock.", path, required=k == "heading_deg", finite=k == "heading_deg")
+           for k in _DOCK_FLOATS}
+    return DockConditions(
+        heading_rad=num["heading_deg"] * DEG2RAD,
+        pitch_rad=0.0 if math.isnan(num["pitch_deg"]) else num["pitch_deg"] * DEG2RAD,
+        roll_rad=0.0 if math.isnan(num["roll_deg"]) else num["roll_deg"] * DEG2RAD,
+        lat_rad=num["lat_deg"] * DEG2RAD, lon_rad=num["lon_deg"] * DEG2RAD,
+        height_m=0.0 if math.isnan(num["height_m"]) else num["height_m"],
+        pressure_hpa=num["pressure_hpa"], temperature_c=num["temperature_c"],
+        refraction_model=_text(table, "refraction_model", "dock.", path, required=False),
+        refraction_mode=_text(table, "refraction_mode", "dock.", path, required=False))
+
+
+def load_installation(path):
+    """Read an installation TOML file.
+
+    Raises
+    ------
+    ShipstarError
+        Missing file, bad TOML, wrong format name or version, a missing or mistyped field
+        (named in the message), an unknown key.
+    """
+    from shipstar.calibrate._installation_model import Installation
+
+    path = Path(path)
+    doc = _read_toml(path)
+    _check_keys(doc, _TOP_FLOATS + _TOP_INTS + _TOP_STRS + ("format_version", "dock"), "", path)
+    if doc.get("format", FORMAT_NAME) != FORMAT_NAME:
+        raise ShipstarError(f"installation file {path}: format is {doc.get('format')!r}, expected {FORMAT_NAME!r}")
+    version = doc.get("format_version", FORMAT_VERSION)
+    if version != FORMAT_VERSION:
+        raise ShipstarError(f"installation file {path}: format_version {version!r} is not supported "
+                            f"(this shipstar reads {FORMAT_VERSION})")
+    angles = [_number(doc, f"{a}_deg", "", path, required=True, finite=True) * DEG2RAD for a in _AXES]
+    counts = {}
+    for k in _TOP_INTS:
+        v = doc.get(k, 0)
+        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+            raise ShipstarError(f"installation file {path}: {k} must be a non-negative integer, got {v!r}")
+        counts[k] = v
+    std = tuple(_number(doc, f"std_{a}_arcsec", "", path, required=False, finite=False) for a in _AXES)
+    sem = tuple(_number(doc, f"sem_{a}_arcsec", "", path, required=False, finite=False) for a in _AXES)
+    return Installation(
+        sensor=_text(doc, "sensor", "", path, required=True), camera=_text(doc, "camera", "", path, required=True),
+        az_rad=angles[0], el_rad=angles[1], roll_rad=angles[2], std_arcsec=std, sem_arcsec=sem,
+        session=_text(doc, "session", "", path, required=False), date_utc=_text(doc, "date_utc", "", path,
+                                                                               required=False),
+        dock=_dock(doc["dock"], path) if "dock" in doc else None, **counts)

@@ -1,0 +1,266 @@
+"""Calibration frames from a directory: FITS images or JSON star lists.
+
+**FITS images** (``*.fits``, ``*.fit``, ``*.fts``; as ``shipstar simulate`` writes them):
+the stars are extracted and identified (:func:`shipstar.identify.solve_image`, with a
+focal length known to +-5 % and centroids to +-3 px, since the camera is not calibrated
+yet).  Header keywords used: ``DATE-OBS`` (UTC, mid-exposure; required), ``INSTRUME``
+or ``SENSOR`` (camera name), and for frames taken on the ground ``SITELAT``,
+``SITELONG``, ``SITEELEV`` (deg, deg, m), ``PRESSURE`` (hPa), ``TEMPERAT`` (C),
+``REFRMOD``.  ``SIMFRAME = 'icrs'`` marks a simulated frame in space, rendered without
+aberration: its reference directions are catalog places.
+
+**JSON star lists** (``*.json``, not ``*.truth.json``), e.g. ``shipstar solve --json``
+output::
+
+    {"stars": [{"x": 812.4, "y": 97.1, "hip": 32349}, ...],
+     "date_obs": "2024-03-15T20:16:00.000",         # or "utc"; else --date-obs
+     "camera": "seed002", "width_px": 2560, "height_px": 1920,          # optional
+     "lat_deg": 31.9, "lon_deg": 120.3, "height_m": 5.0,                # optional (ground)
+     "pressure_hpa": 1021.7, "temperature_c": 11.1, "refraction_model": "almanac"}
+
+Stars with ``hip`` missing, null or negative are ignored; a list with ``"solved": false``
+is skipped.  A directory holding FITS files is read as images (JSON files beside them
+are ignored).  Values given to :func:`load_calibration_frames` (the command's flags)
+override the files'.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from shipstar.errors import ShipstarError
+
+__all__ = ["LoadedFrames", "load_calibration_frames", "FITS_SUFFIXES",
+           "IDENTIFY_FOV_TOLERANCE", "IDENTIFY_CENTROID_ERROR_PX"]
+
+FITS_SUFFIXES = (".fits", ".fit", ".fts")
+#: identification of images taken with a not yet calibrated camera
+IDENTIFY_FOV_TOLERANCE = 0.05
+IDENTIFY_CENTROID_ERROR_PX = 3.0
+_TIME_KEYS = ("date_obs", "utc", "utc_mid_exposure", "DATE-OBS")
+
+
+@dataclass(frozen=True)
+class LoadedFrames:
+    """Frames read from a directory.
+
+    Attributes
+    ----------
+    frames : list of CalibrationFrame
+    skipped : list of (str, str)
+        ``(file name, reason)`` of files that gave no frame (not identified, unsolved).
+    kind : str
+        ``"fits"`` or ``"json"``.
+    """
+
+    frames: list
+    skipped: list
+    kind: str
+
+
+@dataclass
+class _Meta:
+    """What a file says about its frame (None: not said)."""
+
+    label: str
+    utc: object = None
+    camera_name: str | None = None
+    image_shape_hw: tuple | None = None
+    lat_deg: float | None = None
+    lon_deg: float | None = None
+    height_m: float = 0.0
+    pressure_hpa: float | None = None
+    temperature_c: float | None = None
+    relative_humidity: float | None = None
+    refraction_model: str | None = None
+    places: str = "apparent"
+
+
+def _number(value, what: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ShipstarError(f"{what} must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _json_meta(path: Path, data: dict) -> _Meta:
+    where = f"star list {path.name!r}"
+    meta = _Meta(path.name)
+    for key in _TIME_KEYS:
+        if data.get(key) is not None:
+            meta.utc = data[key]
+            break
+    cam = data.get("camera")
+    if isinstance(cam, dict):
+        cam = cam.get("name")
+    meta.camera_name = cam if isinstance(cam, str) else data.get("camera_name")
+    if data.get("width_px") is not None and data.get("height_px") is not None:
+        meta.image_shape_hw = (int(_number(data["height_px"], f"{where}: height_px")),
+                               int(_number(data["width_px"], f"{where}: width_px")))
+    for key in ("lat_deg", "lon_deg", "height_m", "pressure_hpa", "temperature_c",
+                "relative_humidity"):
+        if data.get(key) is not None:
+            setattr(meta, key, _number(data[key], f"{where}: {key}"))
+    if data.get("refraction_model") is not None:
+        meta.refraction_model = str(data["refraction_model"])
+    if data.get("places") is not None:
+        meta.places = str(data["places"])
+    return meta
+
+
+def _json_stars(path: Path):
+    """``(xy (N, 2), hip (N,), meta)`` of a JSON star list, or a skip reason (str)."""
+    where = f"star list {path.name!r}"
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ShipstarError(f"cannot read {where}: {exc}") from None
+    except json.JSONDecodeError as exc:
+        raise ShipstarError(f"{where} is not valid JSON: {exc.msg} (line {exc.lineno})") from None
+    if not isinstance(data, dict) or not isinstance(data.get("stars"), list):
+        raise ShipstarError(f"{where} has no \"stars\" list of {{\"x\", \"y\", \"hip\"}} objects")
+    if data.get("solved") is False:
+        return f"not solved: {data.get('reason', 'no reason given')}"
+    xy, hip = [], []
+    for k, star in enumerate(data["stars"]):
+        if not isinstance(star, dict) or "x" not in star or "y" not in star:
+            raise ShipstarError(f"{where}: star {k} is not an object with \"x\" and \"y\"")
+        h = star.get("hip")
+        if h is None or isinstance(h, bool) or not isinstance(h, int) or h < 0:
+            continue
+        xy.append((_number(star["x"], f"{where}: star {k} x"), _number(star["y"], f"{where}: star {k} y")))
+        hip.append(h)
+    return np.array(xy, float).reshape(-1, 2), np.array(hip, np.int64), _json_meta(path, data)
+
+
+def _fits_meta(path: Path, header, shape) -> _Meta:
+    meta = _Meta(path.name, utc=header.get("DATE-OBS"), image_shape_hw=tuple(shape))
+    name = header.get("INSTRUME", header.get("SENSOR"))
+    meta.camera_name = str(name).strip() if name is not None else None
+    for key, attr in (("SITELAT", "lat_deg"), ("SITELONG", "lon_deg"), ("SITEELEV", "height_m"),
+                      ("PRESSURE", "pressure_hpa"), ("TEMPERAT", "temperature_c")):
+        if header.get(key) is not None:
+            setattr(meta, attr, _number(header[key], f"FITS {path.name!r}: {key}"))
+    if header.get("REFRMOD") is not None:
+        meta.refraction_model = str(header["REFRMOD"]).strip()
+    if str(header.get("SIMFRAME", "")).strip().lower() == "icrs":
+        meta.places = "catalog"
+    return meta
+
+
+def _fits_header(path: Path):
+    import warnings
+
+    from astropy.io import fits
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            with fits.open(path, memmap=False) as hdul:
+                for hdu in hdul:
+                    if "DATE-OBS" in hdu.header or getattr(hdu, "data", None) is not None:
+                        return hdu.header.copy()
+    except (OSError, ValueError, TypeError, IndexError, KeyError, EOFError) as exc:
+        raise ShipstarError(f"cannot read FITS file {path.name!r}: {str(exc).splitlines()[0]}") from None
+    raise ShipstarError(f"FITS file {path.name!r} has no image")
+
+
+def _fits_stars(path: Path, camera, database):
+    from shipstar.extract import read_image
+    from shipstar.identify import solve_image
+
+    pixels = read_image(path)
+    meta = _fits_meta(path, _fits_header(path), pixels.shape)
+    if (pixels.shape[1], pixels.shape[0]) != (camera.width_px, camera.height_px):
+        raise ShipstarError(f"frame {path.name!r} is {pixels.shape[1]}x{pixels.shape[0]} px but camera "
+                            f"{camera.name!r} is {camera.width_px}x{camera.height_px} px")
+    res = solve_image(pixels, camera=camera, fov_tolerance=IDENTIFY_FOV_TOLERANCE,
+                      centroid_error_px=IDENTIFY_CENTROID_ERROR_PX, database=database)
+    if not res.solved:
+        return f"not identified: {res.reason}"
+    keep = np.asarray(res.hip) >= 0
+    return np.asarray(res.xy_px, float)[keep], np.asarray(res.hip, np.int64)[keep], meta
+
+
+def _frame_from(xy, hip, meta: _Meta, overrides: dict, catalog):
+    from shipstar.calibrate.intrinsics import calibration_frame
+    from shipstar.sky.apparent import Site
+    from shipstar.sky.refraction import Weather
+    from shipstar.sky.time import utc_jd_from_iso
+
+    utc = overrides.get("utc") or meta.utc
+    if utc is None:
+        raise ShipstarError(f"frame {meta.label!r} has no observation time (DATE-OBS / \"date_obs\"); "
+                            "give it with --date-obs")
+    jd = utc_jd_from_iso(str(utc).strip())
+    site = overrides.get("site")
+    if site is None and meta.lat_deg is not None and meta.lon_deg is not None:
+        site = Site.from_deg(meta.lat_deg, meta.lon_deg, meta.height_m)
+    weather = overrides.get("weather")
+    if weather is None and site is not None and meta.pressure_hpa is not None:
+        weather = Weather(pressure_hpa=meta.pressure_hpa,
+                          temperature_c=10.0 if meta.temperature_c is None else meta.temperature_c,
+                          relative_humidity=meta.relative_humidity or 0.0)
+    model = overrides.get("refraction_model") or meta.refraction_model or "almanac"
+    places = "apparent" if site is not None else meta.places
+    return calibration_frame(xy, hip, jd, catalog=catalog, site=site, weather=weather,
+                             refraction_model=model, places=places, label=meta.label,
+                             camera_name=meta.camera_name, image_shape_hw=meta.image_shape_hw)
+
+
+def load_calibration_frames(directory, camera, *, utc: str | None = None, site=None,
+                            weather=None, refraction_model: str | None = None,
+                            catalog=None) -> LoadedFrames:
+    """Read every frame of ``directory`` (FITS images, else JSON star lists).
+
+    Parameters
+    ----------
+    directory : path
+    camera : Camera
+        Nominal camera (identifies the images; image size checked).
+    utc : str, optional
+        Observation time (ISO 8601 UTC) for files that do not give one.
+    site, weather, refraction_model : optional
+        Override what the files say (a site puts every frame on the ground: apparent
+        topocentric places and refraction).
+    catalog : StarCatalog, optional
+        Default: the full Hipparcos catalog.
+
+    Raises
+    ------
+    ShipstarError
+        Not a directory, no frames in it, unreadable or malformed files, a frame without
+        a time.
+    """
+    root = Path(directory)
+    if not root.is_dir():
+        raise ShipstarError(f"frames directory {str(root)!r} does not exist or is not a directory")
+    files = sorted(p for p in root.iterdir() if p.is_file())
+    fits_files = [p for p in files if p.name.lower().endswith(FITS_SUFFIXES)]
+    json_files = [p for p in files if p.suffix.lower() == ".json"
+                  and not p.name.lower().endswith(".truth.json")]
+    if not fits_files and not json_files:
+        raise ShipstarError(f"no frames in {str(root)!r}: expected FITS images (*.fits) or JSON "
+                            "star lists (*.json)")
+    if catalog is None:
+        from shipstar.sky.catalog import load_hipparcos
+
+        catalog = load_hipparcos()
+    overrides = {"utc": utc, "site": site, "weather": weather, "refraction_model": refraction_model}
+    database = None
+    if fits_files:
+        from shipstar.identify import build_database
+
+        database = build_database(camera, fov_tolerance=IDENTIFY_FOV_TOLERANCE)
+    frames, skipped = [], []
+    for path in fits_files or json_files:
+        got = _fits_stars(path, camera, database) if fits_files else _json_stars(path)
+        if isinstance(got, str):
+            skipped.append((path.name, got))
+            continue
+        frames.append(_frame_from(*got, overrides, catalog))
+    return LoadedFrames(frames, skipped, "fits" if fits_files else "json")

@@ -1,0 +1,199 @@
+"""``shipstar calibrate {intrinsics,install}``: the calibration command group.
+
+``intrinsics`` (this module): focal length, principal point and Weng distortion from
+star frames (seed 002, docs/calibration-intrinsic.md).  ``install``
+(``cli/_calibrate_install.py``): installation angles from dock frames.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from shipstar.cli._common import emit_json, finite_float, latitude_deg
+
+__all__ = ["register"]
+
+GROUP_EPILOG = """\
+examples:
+  shipstar calibrate intrinsics --frames night1/ --camera seed002 --out seed002.cal.toml
+  shipstar calibrate install --frames dock/A1 --sensor A1 --camera A1 ... --out A1.install.toml
+
+Run 'shipstar calibrate COMMAND --help' for a command's options.
+"""
+
+INTRINSICS_EPILOG = """\
+example (20 frames of the night sky, taken on the ground):
+  shipstar calibrate intrinsics --frames night1/ --camera seed002 --method joint \\
+      --lat-deg 28.2 --lon-deg 112.9 --pressure-hpa 1008 --temperature-c 12 \\
+      --out seed002.cal.toml --json
+
+Frames: a directory of FITS images (DATE-OBS = mid-exposure UTC; site and weather from
+SITELAT/SITELONG/SITEELEV/PRESSURE/TEMPERAT when present), extracted and identified with
+the nominal camera, or of JSON star lists {"stars": [{"x", "y", "hip"}], "date_obs": ...}
+as 'shipstar solve --json' writes them (add --date-obs when they carry no time).
+Reference directions are apparent places at the observation time; with a site (flags or
+files) also per-star refraction.
+
+Methods: sine / cosine = seed 002's observation equations on the sines / cosines of the
+interstar angles with its two-step iteration; joint = all parameters at once, robust
+(Huber), with a free attitude per frame.  --terms: all (seed 002's Weng model, default),
+auto (the terms the data support), none (f and principal point only), or a list such as
+k1,k2,p1,p2.
+Writes the calibrated camera (TOML) and a plot of the residual vectors over the sensor.
+Exit codes: 0 calibrated; 1 the fit did not converge (nothing written); 2 bad input.
+"""
+
+
+def _one_line_errors(parser: argparse.ArgumentParser) -> None:
+    """argparse errors as one line on stderr (exit 2), like every shipstar error."""
+    def error(message):
+        parser.exit(2, f"{parser.prog}: error: {message}\n")
+
+    parser.error = error
+
+
+def _fraction(text: str) -> float:
+    value = finite_float(text)
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be within [0, 1], got {value}")
+    return value
+
+
+def register(subparsers) -> argparse.ArgumentParser:
+    """Add the ``calibrate`` group with its sub-commands."""
+    from shipstar.cli._calibrate_install import add_install_parser
+
+    p = subparsers.add_parser(
+        "calibrate", help="calibrate a star sensor (intrinsics, installation)",
+        description="Calibrate a star sensor: its intrinsic parameters from star frames, or its "
+                    "installation angles from dock frames.",
+        epilog=GROUP_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    _one_line_errors(p)
+    sub = p.add_subparsers(dest="calibrate_command", metavar="{intrinsics,install}")
+    _add_intrinsics_parser(sub)
+    add_install_parser(sub)
+    p.set_defaults(run=lambda args: _group_help(p))
+    return p
+
+
+def _group_help(parser) -> int:
+    parser.print_help(sys.stderr)
+    return 2
+
+
+def _add_intrinsics_parser(sub) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "intrinsics", help="focal length, principal point and distortion from star frames",
+        description="Calibrate a star sensor's focal length, principal point and Weng distortion "
+                    "from star frames alone, by the invariance of interstar angles (seed 002).",
+        epilog=INTRINSICS_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    _one_line_errors(p)
+    p.add_argument("--frames", required=True, metavar="DIR", help="directory of FITS frames or JSON star lists")
+    p.add_argument("--camera", required=True, metavar="NAME|FILE", help="nominal camera: preset or TOML file")
+    p.add_argument("--method", choices=("sine", "cosine", "joint"), default="joint",
+                   help="sine / cosine: seed 002's two-step method; joint (default): all at once, robust")
+    p.add_argument("--terms", default="all", metavar="LIST",
+                   help="distortion terms: all (default), auto, none, or e.g. k1,k2,p1,p2,s1,s2")
+    p.add_argument("--pairs", action="store_true",
+                   help="joint: fit the interstar angles instead of star directions with per-frame attitudes")
+    p.add_argument("--no-term-check", action="store_true",
+                   help="skip the check of which distortion terms the data support")
+    p.add_argument("--date-obs", metavar="ISO", help="UTC of frames that carry no time (ISO 8601)")
+    p.add_argument("--lat-deg", type=latitude_deg, help="observing site geodetic latitude (deg)")
+    p.add_argument("--lon-deg", type=finite_float, help="observing site longitude, east positive (deg)")
+    p.add_argument("--height-m", type=finite_float, default=0.0, help="site height above WGS84 (m, default 0)")
+    p.add_argument("--pressure-hpa", type=finite_float, help="air pressure at the sensor (hPa)")
+    p.add_argument("--temperature-c", type=finite_float, help="air temperature (C, default 10)")
+    p.add_argument("--relative-humidity", type=_fraction, help="0..1 (erfa model only, default 0)")
+    p.add_argument("--refraction", choices=("almanac", "erfa", "none"),
+                   help="refraction model for frames with a site (default: the file's, else almanac)")
+    p.add_argument("--out", required=True, metavar="FILE.toml", help="calibrated camera file to write")
+    p.add_argument("--plot", metavar="FILE.png",
+                   help="residual-vector plot (default: next to --out, <name>.residuals.png)")
+    p.add_argument("--no-plot", action="store_true", help="do not write the plot")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(run=run_intrinsics)
+    return p
+
+
+def _site_and_weather(args):
+    from shipstar.errors import ShipstarError
+    from shipstar.sky.apparent import Site
+    from shipstar.sky.refraction import Weather
+
+    site = None
+    if (args.lat_deg is None) != (args.lon_deg is None):
+        raise ShipstarError("give both --lat-deg and --lon-deg (or neither)")
+    if args.lat_deg is not None:
+        site = Site.from_deg(args.lat_deg, args.lon_deg, args.height_m)
+    weather = None
+    if args.pressure_hpa is not None or args.temperature_c is not None or args.relative_humidity is not None:
+        weather = Weather(pressure_hpa=1013.25 if args.pressure_hpa is None else args.pressure_hpa,
+                          temperature_c=10.0 if args.temperature_c is None else args.temperature_c,
+                          relative_humidity=0.0 if args.relative_humidity is None else args.relative_humidity)
+    return site, weather
+
+
+def _default_plot_path(out: str) -> str:
+    from pathlib import Path
+
+    path = Path(out)
+    stem = path.name[:-5] if path.name.lower().endswith(".toml") else path.name
+    return str(path.with_name(stem + ".residuals.png"))
+
+
+def _calibrated_camera(cal, args):
+    notes = (f"calibrated by shipstar calibrate intrinsics: method {cal.method}, terms "
+             f"{','.join(t for t in cal.fitted[3:]) or 'none'}, {cal.n_frames} frames, {cal.n_stars} stars "
+             f"from {args.frames}; interstar rms {cal.rms_after_arcsec:.3f} arcsec")
+    return cal.camera.replace(notes=notes)
+
+
+def _print_table(cal, out_path, plot_path, skipped) -> None:
+    print(f"camera {cal.camera.name!r}: method {cal.method}, {cal.n_frames} frames, {cal.n_stars} stars, "
+          f"{cal.n_pairs} pairs")
+    for name in cal.fitted:
+        print(f"  {name:12s} {cal.values[name]: .8g}  +- {cal.sigma[name]:.3g}")
+    print(f"  interstar rms: before {cal.rms_before_rad:.3e} rad ({cal.rms_before_arcsec:.3f}\"), "
+          f"after {cal.rms_after_rad:.3e} rad ({cal.rms_after_arcsec:.3f}\")")
+    print(f"  centroid noise {cal.centroid_sigma_px:.3f} px; supported distortion terms: "
+          f"{', '.join(cal.supported_distortion_terms) or '(not checked or none)'}")
+    for name, reason in skipped:
+        print(f"  skipped {name}: {reason}")
+    if out_path:
+        print(f"wrote {out_path}" + (f" and {plot_path}" if plot_path else ""))
+    elif not cal.solved:
+        print(f"not calibrated: {cal.reason}")
+
+
+def run_intrinsics(args) -> int:
+    from shipstar.calibrate.intrinsics import calibrate_intrinsics, load_calibration_frames, plot_residuals
+    from shipstar.camera import load_camera, save_camera
+    from shipstar.errors import ShipstarError
+
+    camera = load_camera(args.camera)
+    site, weather = _site_and_weather(args)
+    if args.plot and args.no_plot:
+        raise ShipstarError("give --plot or --no-plot, not both")
+    loaded = load_calibration_frames(args.frames, camera, utc=args.date_obs, site=site, weather=weather,
+                                     refraction_model=args.refraction)
+    if not loaded.frames:
+        reasons = "; ".join(f"{n}: {r}" for n, r in loaded.skipped[:3])
+        raise ShipstarError(f"no usable frame in {args.frames!r} ({reasons})")
+    cal = calibrate_intrinsics(loaded.frames, camera, method=args.method, terms=args.terms,
+                               attitudes=not args.pairs, check_terms=not args.no_term_check)
+    out_path = plot_path = None
+    if cal.solved:
+        save_camera(_calibrated_camera(cal, args), args.out)
+        out_path = args.out
+        if not args.no_plot:
+            plot_path = str(plot_residuals(cal, args.plot or _default_plot_path(args.out)))
+    if args.json:
+        obj = cal.as_json_dict()
+        obj.update(frames_dir=str(args.frames), source=loaded.kind, out=out_path, plot=plot_path,
+                   skipped=[{"file": n, "reason": r} for n, r in loaded.skipped])
+        emit_json(obj)
+    else:
+        _print_table(cal, out_path, plot_path, loaded.skipped)
+    return 0 if cal.solved else 1

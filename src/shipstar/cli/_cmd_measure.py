@@ -1,0 +1,234 @@
+"""``shipstar measure``: ship heading, pitch and roll over a session from calibrated sensors."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from shipstar.cli._common import emit_json, finite_float, latitude_deg
+from shipstar.errors import ShipstarError
+
+__all__ = ["register", "run"]
+
+EPILOG = """\
+examples:
+  shipstar measure --sensor A1=sea/A1 --sensor A2=sea/A2 \\
+      --install A1.install.toml A2.install.toml --track sea/track.csv --weather sea/weather.csv \\
+      --out attitude.csv --plots plots/ --json
+  shipstar measure --sensor A1=dock/A1 --install A1.install.toml --lat-deg 31.9 --lon-deg 120.3 \\
+      --pressure-hpa 1021.7 --temperature-c 11.1 --out a1.csv
+
+Each --sensor NAME=DIR gives one sensor's FITS frames (DATE-OBS = mid-exposure UTC), in
+time order by file name; each sensor needs an installation file (shipstar calibrate
+install) naming it.  The camera is the one named in the installation file (a preset),
+unless --camera NAME=FILE gives it.  The ship's position: --lat-deg/--lon-deg (fixed) or
+--track CSV (time_utc, lat_deg, lon_deg[, height_m]); the weather: --pressure-hpa and
+--temperature-c (fixed) or --weather CSV (time_utc, pressure_hpa, temperature_c[,
+relative_humidity]); docs/file-formats.md.
+
+Output CSV: one row per sensor frame (method single) and, with two or more sensors, per
+epoch of the reference sensor for the seed's fusion rule and the joint solution.
+Failed frames are rows with solved=0 and their reason.  --truth CSV (time_utc,
+heading_deg, pitch_deg, roll_deg; simulated sessions) adds error RMS to the summary.
+Exit codes: 0 every frame solved; 1 written, but some frames failed; 2 bad input
+(including a sensor none of whose frames solved).
+"""
+
+
+def _one_line_errors(parser: argparse.ArgumentParser) -> None:
+    def error(message):
+        parser.exit(2, f"{parser.prog}: error: {message}\n")
+
+    parser.error = error
+
+
+def _fraction(text: str) -> float:
+    value = finite_float(text)
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be within [0, 1], got {value}")
+    return value
+
+
+def _name_value(text: str) -> tuple[str, str]:
+    name, sep, value = text.partition("=")
+    if not sep or not name.strip() or not value.strip():
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
+    return name.strip(), value.strip()
+
+
+def _non_negative(text: str) -> float:
+    value = finite_float(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
+    return value
+
+
+def register(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser(
+        "measure", help="ship heading, pitch and roll from star sensor frames",
+        description="Ship attitude over a session from one or more calibrated star sensors: per-frame "
+                    "single-sensor attitudes, the seed's fusion rule and the joint solution (seed 003).",
+        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    _one_line_errors(p)
+    p.add_argument("--sensor", required=True, action="append", type=_name_value, metavar="NAME=DIR",
+                   help="a sensor and its frames directory (repeat for each sensor)")
+    p.add_argument("--install", required=True, action="extend", nargs="+", metavar="FILE",
+                   help="installation TOML files, one per sensor")
+    p.add_argument("--camera", action="append", type=_name_value, default=[], metavar="NAME=FILE",
+                   help="camera preset or TOML file of a sensor (default: the installation's camera preset)")
+    g = p.add_argument_group("ship position (fixed, or a track)")
+    g.add_argument("--lat-deg", type=latitude_deg, help="geodetic latitude (deg)")
+    g.add_argument("--lon-deg", type=finite_float, help="longitude, east positive (deg)")
+    g.add_argument("--height-m", type=finite_float, default=0.0, help="height above WGS84 (m)")
+    g.add_argument("--track", metavar="CSV", help="time_utc, lat_deg, lon_deg[, height_m]")
+    w = p.add_argument_group("weather (fixed, or a table)")
+    w.add_argument("--pressure-hpa", type=finite_float, help="air pressure at the sensors (hPa)")
+    w.add_argument("--temperature-c", type=finite_float, help="air temperature (C)")
+    w.add_argument("--relative-humidity", type=_fraction, default=0.0, help="0..1 (default 0)")
+    w.add_argument("--weather", metavar="CSV", help="time_utc, pressure_hpa, temperature_c[, relative_humidity]")
+    o = p.add_argument_group("processing")
+    o.add_argument("--refraction", choices=("erfa", "almanac", "none"), default="erfa",
+                   help="refraction model (default erfa; almanac = the seeds')")
+    o.add_argument("--refraction-mode", choices=("per-star", "boresight"), default="per-star",
+                   help="per-star (default) or the seed's boresight-only refraction")
+    o.add_argument("--reference", metavar="NAME", help="sensor whose frame times are the epochs (default first)")
+    o.add_argument("--max-pair-offset-s", type=_non_negative, default=0.06,
+                   help="largest time offset of paired frames (s, default 0.06)")
+    o.add_argument("--no-motion-compensation", action="store_true",
+                   help="do not carry paired frames to the epoch time (for comparison)")
+    r = p.add_argument_group("output")
+    r.add_argument("--out", required=True, metavar="CSV", help="attitude CSV to write")
+    r.add_argument("--plots", metavar="DIR", help="write attitude.png and residuals.png here")
+    r.add_argument("--truth", metavar="CSV", help="true attitude (simulated sessions): errors in the summary")
+    r.add_argument("--progress", action="store_true", help="progress bar on stderr (default: only on a terminal)")
+    r.add_argument("--json", action="store_true", help="print one JSON object (the summary)")
+    p.set_defaults(run=run)
+    return p
+
+
+def _site_and_weather(args):
+    from shipstar.pipeline import Track, WeatherTable
+
+    if args.track and (args.lat_deg is not None or args.lon_deg is not None):
+        raise ShipstarError("give either --track or --lat-deg/--lon-deg, not both")
+    if args.track:
+        track = Track.read_csv(args.track)
+    elif args.lat_deg is None or args.lon_deg is None:
+        raise ShipstarError("give the ship's position: --lat-deg and --lon-deg, or --track CSV")
+    else:
+        track = Track.fixed(args.lat_deg, args.lon_deg, args.height_m)
+    fixed = [args.pressure_hpa, args.temperature_c]
+    if args.weather and any(v is not None for v in fixed):
+        raise ShipstarError("give either --weather or --pressure-hpa/--temperature-c, not both")
+    if args.weather:
+        return track, WeatherTable.read_csv(args.weather)
+    if any(v is None for v in fixed):
+        raise ShipstarError("give the weather: --pressure-hpa and --temperature-c, or --weather CSV")
+    return track, WeatherTable.constant(args.pressure_hpa, args.temperature_c, args.relative_humidity)
+
+
+def _installations(args) -> dict:
+    from shipstar.calibrate.installation import load_installation
+
+    names = [n for n, _ in args.sensor]
+    if len(set(names)) != len(names):
+        raise ShipstarError(f"each --sensor name must be given once, got {names}")
+    by_sensor = {}
+    for path in args.install:
+        inst = load_installation(path)
+        if inst.sensor not in names:
+            raise ShipstarError(f"installation file {path} is for sensor {inst.sensor!r}, which is not among the "
+                                f"--sensor names ({', '.join(names)})")
+        if inst.sensor in by_sensor:
+            raise ShipstarError(f"two installation files for sensor {inst.sensor!r}")
+        by_sensor[inst.sensor] = inst
+    missing = [n for n in names if n not in by_sensor]
+    if missing:
+        raise ShipstarError(f"no installation file for sensor {missing[0]!r}")
+    return by_sensor
+
+
+def _configs(args):
+    from shipstar.camera import load_camera
+    from shipstar.pipeline import SensorConfig, scan_frames
+    from shipstar.pipeline._frames import check_sensor_name
+
+    installs = _installations(args)
+    cams = dict(args.camera)
+    unknown = sorted(set(cams) - {n for n, _ in args.sensor})
+    if unknown:
+        raise ShipstarError(f"--camera for unknown sensor {unknown[0]!r}")
+    configs, frames = [], []
+    for name, directory in args.sensor:
+        inst = installs[name]
+        camera = load_camera(cams.get(name, inst.camera))
+        configs.append(SensorConfig(name, camera, inst))
+        fr = scan_frames(directory)
+        check_sensor_name(fr, name, camera.name, directory)
+        frames.append(fr)
+    return configs, frames
+
+
+def _check_sensors_solved(result) -> None:
+    for name, frames in zip(result.sensors, result.frames):
+        if not any(fr.solved for fr in frames):
+            reasons = sorted({fr.reason for fr in frames})
+            raise ShipstarError(f"sensor {name}: none of its {len(frames)} frames solved (e.g. {reasons[0]})")
+
+
+def _f2(x) -> str:
+    return "-" if x is None else f"{x:.2f}"
+
+
+def _print_text(summary: dict, out: str) -> None:
+    for name, s in summary["sensors"].items():
+        print(f"sensor {name}: {s['n_solved']} of {s['n_frames']} frames solved, median {_f2(s['median_stars_used'])} "
+              f"stars, median residual RMS {_f2(s['median_residual_rms_arcsec'])}''")
+        for f in s["failures"]:
+            print(f"  failed: {f['frame']} ({f['time_utc']}): {f['reason']}")
+    print("method          solved   sigma heading/pitch/roll ('')    RMS vs truth ('')")
+    for m, b in summary["methods"].items():
+        sig = "/".join(_f2(v) for v in b["median_sigma_arcsec"])
+        rms = "/".join(_f2(v) for v in b.get("rms_arcsec", [None] * 3))
+        print(f"{m:15s} {b['n_solved']:4d}/{b['n']:<4d} {sig:>28s}    {rms:>20s}")
+    print(f"written: {out}")
+
+
+def run(args) -> int:
+    from shipstar.pipeline import (
+        PipelineOptions,
+        TruthTable,
+        plot_session,
+        process_session,
+        session_summary,
+        write_attitude_csv,
+    )
+    from shipstar.pipeline._progress import ProgressBar
+
+    track, weather = _site_and_weather(args)
+    truth = TruthTable.read_csv(args.truth) if args.truth else None
+    configs, frames = _configs(args)
+    options = PipelineOptions(refraction_model=args.refraction, refraction=args.refraction_mode,
+                              max_pair_offset_s=args.max_pair_offset_s,
+                              compensate_motion=not args.no_motion_compensation)
+    bar = ProgressBar(True if args.progress else None)
+    try:
+        result = process_session(configs, frames, track, weather, options, reference=args.reference, progress=bar)
+    finally:
+        bar.close()
+    _check_sensors_solved(result)
+    write_attitude_csv(result, args.out)
+    summary = session_summary(result, truth)
+    summary["out"] = str(args.out)
+    if args.plots:
+        summary["plots"] = [str(p) for p in plot_session(result, args.plots, truth)]
+    if args.json:
+        emit_json(summary)
+    else:
+        _print_text(summary, args.out)
+    n_failed = len(result.failures)
+    if n_failed:
+        sensor, label, reason = result.failures[0]
+        print(f"shipstar measure: {n_failed} frames failed (first: {sensor} {label}: {reason})", file=sys.stderr)
+        return 1
+    return 0

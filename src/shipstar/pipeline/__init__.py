@@ -1,0 +1,38 @@
+"""Frames -> ship attitude over a session (seed 003's measurement flow), see docs/pipeline.md.
+
+Public API::
+
+    Frame(utc_jd1, utc_jd2, label, path=|image=|xy_px=, hip=)      # one sensor frame
+    scan_frames(directory) -> [Frame]                               # FITS frames with DATE-OBS
+    SensorConfig(name, camera, installation=None)
+    PipelineOptions(refraction_model="erfa", refraction="per-star", ...)
+    Track.fixed(lat_deg, lon_deg) / Track.read_csv(path)            # ship position
+    WeatherTable.constant(p, t) / WeatherTable.read_csv(path)
+    process_sensor(config, frames, track, weather, options) -> (FrameResult, ...)
+    process_session(configs, frames_per_sensor, track, weather, options) -> SessionResult
+    session_summary(result, truth=None) -> dict;  TruthTable.read_csv(path)
+    write_attitude_csv(result, path);  plot_session(result, out_dir, truth=None)
+"""
+
+from __future__ import annotations
+
+from shipstar.pipeline._frames import Frame, read_fits_frame, scan_frames
+from shipstar.pipeline._fusion import Epoch, sensor_roles
+from shipstar.pipeline._motion import DeckRate, estimate_deck_rate
+from shipstar.pipeline._options import PipelineOptions, SensorConfig
+from shipstar.pipeline._output import ATTITUDE_COLUMNS, attitude_csv_text, write_attitude_csv
+from shipstar.pipeline._plots import plot_session
+from shipstar.pipeline._sensor import FrameResult
+from shipstar.pipeline._session import SessionResult, process_sensor, process_session
+from shipstar.pipeline._stars import StarLookup
+from shipstar.pipeline._stats import attitude_errors_arcsec, method_series, rms_arcsec, session_summary
+from shipstar.pipeline._tables import Track, TruthTable, WeatherTable
+
+__all__ = [
+    "Frame", "scan_frames", "read_fits_frame",
+    "SensorConfig", "PipelineOptions", "Track", "WeatherTable", "TruthTable", "StarLookup",
+    "FrameResult", "Epoch", "SessionResult", "process_sensor", "process_session", "sensor_roles",
+    "DeckRate", "estimate_deck_rate",
+    "session_summary", "attitude_errors_arcsec", "rms_arcsec", "method_series",
+    "ATTITUDE_COLUMNS", "attitude_csv_text", "write_attitude_csv", "plot_session",
+]

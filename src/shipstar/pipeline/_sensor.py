@@ -1,0 +1,261 @@
+"""One sensor's frames -> sensor attitude in the horizontal frame -> ship attitude.
+
+Per frame (seed 003 steps 1-3, 5-6)::
+
+    read FITS -> extract_stars -> identify (tracking after the first frame)
+      -> FrameContext (erfa.apco13 once, at DATE-OBS and the ship's position)
+      -> apparent places of the identified stars -> refraction (per star)
+      -> C_hor_from_sensor (QUEST-Newton, outlier rejection, covariance)
+      -> ship attitude with the installation (seed 003 eq. 14-17)
+
+A frame that fails at any step gives a :class:`FrameResult` with ``solved=False`` and
+the reason; it never stops the session.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from shipstar.errors import ShipstarError
+from shipstar.pipeline._rotation import expm_rotvec, rotvec
+
+__all__ = ["FrameResult", "SensorProcessor"]
+
+_NAN33 = np.full((3, 3), np.nan)
+#: Frames further apart than this (s) do not extrapolate the tracking prior.
+_MAX_PRIOR_GAP_S = 2.0
+#: Earth orientation is looked up once per this many days (1 hour: UT1-UTC moves < 0.1 ms).
+_EOP_BUCKET_DAYS = 1.0 / 24.0
+
+
+@dataclass(frozen=True, eq=False)
+class FrameResult:
+    """What one frame of one sensor gave.
+
+    Attributes
+    ----------
+    sensor : str
+    index : int
+        Position in the sensor's frame sequence.
+    label : str
+        File name or ``#index``.
+    utc_jd1, utc_jd2 : float
+        Mid-exposure time.
+    solved : bool
+        The sensor's horizontal attitude solved.
+    reason : str
+        Why not ('' when solved).
+    identification : str
+        ``"given"`` (known HIP numbers), ``"tracking"``, ``"lost_in_space"`` or ``""``.
+    n_detected, n_identified : int
+        Stars extracted (or given) and identified.
+    C_icrs_from_sensor : ndarray (3, 3)
+        The identification's J2000 attitude (NaN if not identified or given).
+    horizontal : shipstar.attitude._horizontal.HorizontalAttitude or None
+        None when the frame failed before the attitude step.
+    ship : shipstar.ship.ShipAttitude
+        Single-sensor ship attitude (failed when there is no installation).
+    site : shipstar.sky.apparent.Site or None
+    weather : shipstar.sky.refraction.Weather or None
+    elapsed_s : float
+        Processing time of the frame.
+    """
+
+    sensor: str
+    index: int
+    label: str
+    utc_jd1: float
+    utc_jd2: float
+    solved: bool
+    reason: str
+    identification: str
+    n_detected: int
+    n_identified: int
+    C_icrs_from_sensor: np.ndarray
+    horizontal: object
+    ship: object
+    site: object
+    weather: object
+    elapsed_s: float
+
+    @property
+    def C_hor_from_sensor(self) -> np.ndarray:
+        return self.horizontal.C_hor_from_sensor if self.solved else _NAN33.copy()
+
+    @property
+    def n_used(self) -> int:
+        return int(self.horizontal.n_used) if self.solved else 0
+
+    @property
+    def rms_arcsec(self) -> float:
+        return float(self.horizontal.rms_arcsec) if self.solved else math.nan
+
+    @property
+    def utc_iso(self) -> str:
+        from shipstar.sky.time import iso_from_utc_jd
+
+        return iso_from_utc_jd(self.utc_jd1, self.utc_jd2, 3)
+
+    def sensor_stars(self, C_deck_from_sensor, C_sensor_correction=None):
+        """The frame's inlier stars as :class:`shipstar.ship.SensorStars` for joint fusion.
+
+        ``C_sensor_correction`` (3, 3), optional, turns the measured vectors
+        (``w' = C @ w``): used to carry the frame to another time (motion compensation).
+        """
+        from shipstar.ship import SensorStars
+
+        h = self.horizontal
+        keep = h.inliers
+        w = h.w_sensor[keep]
+        if C_sensor_correction is not None:
+            w = w @ np.asarray(C_sensor_correction, float).T
+        return SensorStars(w_sensor=w, v_hor=h.v_hor[keep], C_deck_from_sensor=C_deck_from_sensor,
+                           sigma_rad=h.sigma_rad[keep])
+
+
+class SensorProcessor:
+    """Processes one sensor's frames in time order (keeps the tracking state).
+
+    Parameters
+    ----------
+    config : SensorConfig
+    track : shipstar.pipeline._tables.Track
+    weather : shipstar.pipeline._tables.WeatherTable
+    options : PipelineOptions
+    database : shipstar.identify.StarDatabase, optional
+        Built for the camera on first need (``build_database``, disk-cached).
+    lookup : StarLookup, optional
+        Catalog lookup of identified stars (default: all of Hipparcos).
+    """
+
+    def __init__(self, config, track, weather, options, *, database=None, lookup=None):
+        from shipstar.pipeline._stars import default_lookup
+
+        self.config = config
+        self.track = track
+        self.weather_table = weather
+        self.options = options
+        self._database = database
+        self.lookup = default_lookup() if lookup is None else lookup
+        self._history: list = []          # (t_s, C_icrs_from_sensor) of the last solved frames
+        self._eop: dict = {}
+
+    @property
+    def database(self):
+        if self._database is None:
+            from shipstar.identify import build_database
+
+            self._database = build_database(self.config.camera)
+        return self._database
+
+    # -- steps ---------------------------------------------------------------------------
+    def _measure(self, frame):
+        """``(xy_px (N, 2), sigma_px (N,) or None, utc_jd)``: centroids of the frame."""
+        from shipstar.extract import extract_stars
+        from shipstar.pipeline._frames import read_fits_frame
+
+        if frame.xy_px is not None:
+            return np.asarray(frame.xy_px, float), None
+        image = frame.image
+        if image is None:
+            image, _ = read_fits_frame(frame.path)
+        cam = self.config.camera
+        ex = extract_stars(image, threshold_sigma=self.options.threshold_sigma, psf_sigma_px=cam.psf_sigma_px,
+                           gain_e_per_adu=cam.gain_e_per_adu)
+        sig = np.where(np.isfinite(ex.xy_sigma_px), ex.xy_sigma_px, 1.0)
+        return ex.xy_px, np.hypot(sig, self.options.centroid_floor_px)
+
+    def _prior(self, t_s: float):
+        """Predicted C_icrs_from_sensor at ``t_s`` from the last two solved frames (or None)."""
+        from shipstar.frames import orthonormalize
+
+        if not self._history:
+            return None
+        t_b, C_b = self._history[-1]
+        if len(self._history) < 2 or t_s - t_b > _MAX_PRIOR_GAP_S:
+            return C_b
+        t_a, C_a = self._history[-2]
+        step = rotvec(C_a.T @ C_b) * ((t_s - t_b) / (t_b - t_a))
+        return orthonormalize(C_b @ expm_rotvec(step))
+
+    def _identify(self, frame, xy, t_s: float):
+        """``(hip (N,), mode, C_icrs_from_sensor)``; hip -1 for unidentified stars."""
+        from shipstar.identify import identify_lost_in_space, identify_tracking
+
+        if frame.hip is not None:
+            return np.asarray(frame.hip, np.int64), "given", _NAN33.copy()
+        cam, opt = self.config.camera, self.options
+        prior = self._prior(t_s)
+        if prior is None:
+            idn = identify_lost_in_space(xy, self.database, camera=cam, centroid_error_px=opt.identify_error_px)
+        else:
+            idn = identify_tracking(xy, self.database, prior, camera=cam, prior_error_deg=opt.prior_error_deg,
+                                    centroid_error_px=opt.identify_error_px)
+        if not idn.solved:
+            raise ShipstarError(f"not identified ({idn.mode}): {idn.reason}")
+        self._history = (self._history + [(t_s, np.asarray(idn.C_icrs_from_sensor))])[-2:]
+        return np.asarray(idn.hip, np.int64), idn.mode, np.asarray(idn.C_icrs_from_sensor)
+
+    def _eop_at(self, jd1: float, jd2: float):
+        from shipstar.sky.eop import earth_orientation
+
+        key = int(math.floor(((jd1 - 2451545.0) + jd2) / _EOP_BUCKET_DAYS))
+        if key not in self._eop:
+            self._eop = {key: earth_orientation(jd1, jd2)}
+        return self._eop[key]
+
+    def _horizontal(self, frame, xy, sigma_px, hip):
+        from shipstar.attitude._horizontal import sensor_attitude_hor
+        from shipstar.sky.apparent import frame_context
+
+        cam, opt = self.config.camera, self.options
+        site = self.track.site(frame.utc_jd1, frame.utc_jd2)
+        weather = self.weather_table.weather(frame.utc_jd1, frame.utc_jd2)
+        rows = np.flatnonzero(hip >= 0)
+        if rows.size < 2:
+            raise ShipstarError(f"{rows.size} identified stars, at least 2 needed")
+        ctx = frame_context(frame.utc_jd1, frame.utc_jd2, site, self._eop_at(frame.utc_jd1, frame.utc_jd2))
+        v_true = self.lookup.hor(ctx, hip[rows])
+        w = cam.unproject(xy[rows])
+        scale = cam.pixel_mm / cam.f_mm
+        sigma = None if opt.centroid_sigma_px is None else opt.centroid_sigma_px * scale
+        weights = None if (sigma is not None or sigma_px is None) else sigma_px[rows] ** -2.0
+        h = sensor_attitude_hor(w, v_true, weather, model=opt.refraction_model, refraction=opt.refraction,
+                                sigma_rad=sigma, weights=weights, reject_outliers=opt.reject_outliers,
+                                max_residual_arcsec=opt.max_residual_arcsec)
+        return h, site, weather, int(rows.size)
+
+    def _ship(self, h):
+        from shipstar.ship import ShipAttitude, ship_attitude_from_sensor
+
+        inst = self.config.installation
+        if not h.solved:
+            return ShipAttitude.failed(h.reason, "single")
+        if inst is None:
+            return ShipAttitude.failed("no installation (dock calibration)", "single")
+        return ship_attitude_from_sensor(h.C_hor_from_sensor, inst.C_deck_from_sensor, h.covariance_rad2,
+                                         n_stars=h.n_used)
+
+    # -- public ----------------------------------------------------------------------------
+    def process(self, frame, index: int, t_s: float) -> FrameResult:
+        """Process one frame; ``t_s`` is its time in seconds since the session start."""
+        from shipstar.ship import ShipAttitude
+
+        t0 = time.perf_counter()
+        label = frame.label or f"#{index}"
+        n_det, n_id, mode, C_icrs = 0, 0, "", _NAN33.copy()
+        try:
+            xy, sigma_px = self._measure(frame)
+            n_det = len(xy)
+            hip, mode, C_icrs = self._identify(frame, xy, t_s)
+            h, site, weather, n_id = self._horizontal(frame, xy, sigma_px, hip)
+        except ShipstarError as exc:
+            return FrameResult(self.config.name, index, label, frame.utc_jd1, frame.utc_jd2, False, str(exc), mode,
+                               n_det, n_id, C_icrs, None, ShipAttitude.failed(str(exc), "single"), None, None,
+                               time.perf_counter() - t0)
+        return FrameResult(self.config.name, index, label, frame.utc_jd1, frame.utc_jd2, bool(h.solved), h.reason,
+                           mode, n_det, n_id, C_icrs, h, self._ship(h), site, weather, time.perf_counter() - t0)

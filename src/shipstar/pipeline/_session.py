@@ -1,0 +1,192 @@
+"""Frames -> attitude over a session: :func:`process_session` and :class:`SessionResult`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from shipstar.errors import ShipstarError
+
+__all__ = ["SessionResult", "process_session", "process_sensor"]
+
+
+@dataclass(frozen=True, eq=False)
+class SessionResult:
+    """Everything a session gave.
+
+    Attributes
+    ----------
+    sensors : tuple of str
+    frames : tuple (per sensor) of tuple of FrameResult
+        Every frame, solved or not (failed frames carry their reason).
+    epochs : tuple of Epoch
+        Fused attitudes at the reference sensor's frame times.
+    reference_sensor : str
+    fore_aft_sensor, athwartship_sensor : str
+        Roles in the seed's fusion rule ('' when it cannot be applied).
+    start_utc_jd : (float, float)
+        Time origin of every ``t_s``.
+    options : PipelineOptions
+    """
+
+    sensors: tuple
+    frames: tuple
+    epochs: tuple
+    reference_sensor: str
+    fore_aft_sensor: str
+    athwartship_sensor: str
+    start_utc_jd: tuple
+    options: object
+
+    def frames_of(self, sensor: str) -> tuple:
+        """FrameResults of one sensor."""
+        if sensor not in self.sensors:
+            raise ShipstarError(f"no sensor {sensor!r} in this session (have {', '.join(self.sensors)})")
+        return self.frames[self.sensors.index(sensor)]
+
+    def t_s(self, frame_result) -> float:
+        """Seconds from the session start to a frame."""
+        j1, j2 = self.start_utc_jd
+        return ((frame_result.utc_jd1 - j1) + (frame_result.utc_jd2 - j2)) * 86400.0
+
+    @property
+    def failures(self) -> list:
+        """``[(sensor, frame label, reason), ...]`` of every frame that did not solve."""
+        return [(fr.sensor, fr.label, fr.reason) for frs in self.frames for fr in frs if not fr.solved]
+
+
+def _materialize(frames, name: str) -> list:
+    from shipstar.pipeline._frames import Frame
+
+    out = list(frames)
+    for fr in out:
+        if not isinstance(fr, Frame):
+            raise ShipstarError(f"sensor {name}: frames must be shipstar.pipeline.Frame, got {type(fr).__name__}")
+    for a, b in zip(out, out[1:]):
+        if b.seconds_since(a.utc_jd1, a.utc_jd2) <= 0.0:
+            raise ShipstarError(f"sensor {name}: frames out of time order: {b.label or '#'} ({b.utc_iso}) is not "
+                                f"later than {a.label or '#'} ({a.utc_iso})")
+    return out
+
+
+def _check_inputs(configs, frame_lists, track, weather) -> None:
+    names = [c.name for c in configs]
+    if not configs:
+        raise ShipstarError("no sensors given")
+    if len(set(names)) != len(names):
+        raise ShipstarError(f"sensor names must be unique, got {names}")
+    if len(frame_lists) != len(configs):
+        raise ShipstarError(f"{len(configs)} sensors but {len(frame_lists)} frame sequences")
+    for name, frames in zip(names, frame_lists):
+        if not frames:
+            raise ShipstarError(f"sensor {name} has no frames")
+        for fr in (frames[0], frames[-1]):
+            track.check_covers(fr.utc_jd1, fr.utc_jd2)
+            weather.check_covers(fr.utc_jd1, fr.utc_jd2)
+
+
+def process_sensor(config, frames, track, weather, options=None, *, start_utc_jd=None, database=None,
+                   lookup=None, progress=None) -> tuple:
+    """Process one sensor's frames (in time order) into :class:`FrameResult` s.
+
+    Parameters
+    ----------
+    config : SensorConfig
+    frames : iterable of Frame
+    track : Track
+    weather : WeatherTable
+    options : PipelineOptions, optional
+    start_utc_jd : (float, float), optional
+        Time origin (default: the first frame).
+    database, lookup : optional
+        Identification database and catalog lookup (built on first need).
+    progress : callable(sensor, done, total), optional
+
+    Returns
+    -------
+    tuple of FrameResult
+    """
+    from shipstar.pipeline._options import PipelineOptions
+    from shipstar.pipeline._sensor import SensorProcessor
+
+    options = PipelineOptions() if options is None else options
+    frames = _materialize(frames, config.name)
+    _check_inputs([config], [frames], track, weather)
+    j1, j2 = start_utc_jd if start_utc_jd is not None else (frames[0].utc_jd1, frames[0].utc_jd2)
+    proc = SensorProcessor(config, track, weather, options, database=database, lookup=lookup)
+    out = []
+    for k, fr in enumerate(frames):
+        out.append(proc.process(fr, k, fr.seconds_since(j1, j2)))
+        if progress is not None:
+            progress(config.name, k + 1, len(frames))
+    return tuple(out)
+
+
+def _rate_samples(configs, results, times):
+    """(t_s, C_hor_from_deck, covariance about deck axes) of each sensor's solved frames."""
+    samples = []
+    for c, frs, ts in zip(configs, results, times):
+        if c.installation is None:
+            continue
+        C_ds = c.installation.C_deck_from_sensor
+        ok = [k for k, fr in enumerate(frs) if fr.ship.solved]
+        samples.append((ts[ok], np.array([frs[k].ship.C_hor_from_deck for k in ok]).reshape(-1, 3, 3),
+                        np.array([C_ds @ frs[k].horizontal.covariance_rad2 @ C_ds.T for k in ok]).reshape(-1, 3, 3)))
+    return samples
+
+
+def process_session(configs, frames, track, weather, options=None, *, reference: str | None = None,
+                    databases=None, lookup=None, progress=None) -> SessionResult:
+    """Frames of one or more sensors -> per-frame and fused ship attitude over a session.
+
+    Parameters
+    ----------
+    configs : sequence of SensorConfig
+        The sensors (camera and installation each).
+    frames : sequence of iterables of Frame
+        Each sensor's frames (FITS paths, arrays or centroids with times), in time order.
+    track : Track
+        Ship position over time (``Track.fixed`` in dock).
+    weather : WeatherTable
+        Weather over time (``WeatherTable.constant`` if it did not change).
+    options : PipelineOptions, optional
+    reference : str, optional
+        Sensor whose frame times are the epochs (default the first).
+    databases : dict of name -> StarDatabase, optional
+    lookup : StarLookup, optional
+    progress : callable(sensor, done, total), optional
+
+    Returns
+    -------
+    SessionResult
+
+    Raises
+    ------
+    ShipstarError
+        Duplicate sensor names, no frames, frames out of time order, frame times
+        outside the track or weather tables, an unknown reference sensor.
+    """
+    from shipstar.pipeline._fusion import build_epochs, sensor_roles
+    from shipstar.pipeline._motion import estimate_deck_rate
+    from shipstar.pipeline._options import PipelineOptions
+
+    options = PipelineOptions() if options is None else options
+    configs = list(configs)
+    lists = [_materialize(f, c.name) for c, f in zip(configs, frames)]
+    _check_inputs(configs, lists, track, weather)
+    names = tuple(c.name for c in configs)
+    ref = 0 if reference is None else (names.index(reference) if reference in names else -1)
+    if ref < 0:
+        raise ShipstarError(f"reference sensor {reference!r} is not one of {', '.join(names)}")
+    first = min(lists, key=lambda f: f[0].seconds_since(lists[0][0].utc_jd1, lists[0][0].utc_jd2))[0]
+    start = (first.utc_jd1, first.utc_jd2)
+    results = [process_sensor(c, f, track, weather, options, start_utc_jd=start,
+                              database=(databases or {}).get(c.name), lookup=lookup, progress=progress)
+               for c, f in zip(configs, lists)]
+    times = [np.array([fr.seconds_since(*start) for fr in f]) for f in lists]
+    rate = estimate_deck_rate(_rate_samples(configs, results, times))
+    epochs = build_epochs(configs, results, times, start, rate, options, reference=ref)
+    fore, athw = sensor_roles(configs)
+    return SessionResult(names, tuple(results), epochs, names[ref], names[fore] if fore >= 0 else "",
+                         names[athw] if athw >= 0 else "", start, options)
