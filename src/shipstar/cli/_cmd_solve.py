@@ -1,0 +1,116 @@
+"""``shipstar solve``: extract the stars of an image, identify them, fit the attitude."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from shipstar.cli._common import emit_json, finite_float
+
+EPILOG = """\
+examples:
+  shipstar solve frame.fits --camera A1
+  shipstar solve night_sky.jpg --fov-deg 10 --json
+  shipstar solve frame.png --camera my_camera.toml --mag-limit 7.2
+
+With --camera (a preset name or a camera TOML file) the calibrated camera model is used.
+With --fov-deg the image is treated as a pinhole camera with the principal point at the
+image centre and this horizontal field of view, known to +-10 % (--fov-tolerance); the
+focal length and a radial distortion term are refined from the matched stars and the
+solved FOV is reported.  The star database for the field is built on first use and
+cached (see docs/identification.md).  roll_deg is the position angle of the image's up
+direction, from celestial north through east (docs/conventions.md).
+
+exit status: 0 solved, 1 not solved (the reason is printed), 2 bad input.
+"""
+
+
+def _one_line_error(parser: argparse.ArgumentParser):
+    def error(message: str):
+        print(f"{parser.prog}: error: {message}", file=sys.stderr)
+        raise SystemExit(2)
+
+    return error
+
+
+def _positive(text: str) -> float:
+    value = finite_float(text)
+    if value <= 0.0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {value}")
+    return value
+
+
+def _fov(text: str) -> float:
+    value = finite_float(text)
+    if not 0.5 <= value <= 60.0:
+        raise argparse.ArgumentTypeError(f"must be within 0.5 .. 60 deg, got {value}")
+    return value
+
+
+def _tolerance(text: str) -> float:
+    value = finite_float(text)
+    if not 0.0 <= value <= 0.5:
+        raise argparse.ArgumentTypeError(f"must be within 0 .. 0.5, got {value}")
+    return value
+
+
+def _count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if not 5 <= value <= 1000:
+        raise argparse.ArgumentTypeError(f"must be within 5 .. 1000, got {value}")
+    return value
+
+
+def register(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser(
+        "solve", help="plate-solve an image: boresight RA/Dec, roll, FOV",
+        description="Extract the stars of an image (FITS, PNG, TIFF, JPEG, .npy), identify "
+                    "them against the Hipparcos catalog (lost-in-space) and fit the sensor "
+                    "attitude in ICRS.",
+        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.error = _one_line_error(p)
+    p.add_argument("image", help="image file")
+    cam = p.add_mutually_exclusive_group(required=True)
+    cam.add_argument("--camera", metavar="FILE", help="camera preset (A1, A2, seed002, seed004) or TOML file")
+    cam.add_argument("--fov-deg", type=_fov, help="horizontal field of view of a pinhole camera (deg)")
+    p.add_argument("--fov-tolerance", type=_tolerance, default=None,
+                   help="relative FOV uncertainty (default 0.1 with --fov-deg, 0 with --camera)")
+    p.add_argument("--mag-limit", type=finite_float, default=None,
+                   help="database magnitude limit (Hp; default adapted to the field)")
+    p.add_argument("--centroid-error-px", type=_positive, default=None,
+                   help="bound on a centroid's error per axis (px, default 1)")
+    p.add_argument("--threshold-sigma", type=_positive, default=5.0,
+                   help="extraction detection threshold (default 5)")
+    p.add_argument("--max-stars", type=_count, default=60,
+                   help="brightest extracted stars used (default 60)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(run=run)
+    return p
+
+
+def _summary(res) -> str:
+    if not res.solved:
+        return (f"not solved: {res.reason}\n"
+                f"{len(res.xy_px)} stars extracted, {res.time_ms:.0f} ms")
+    ident = res.identification
+    return (f"solved: RA {res.ra_deg:.4f} deg, Dec {res.dec_deg:+.4f} deg, roll {res.roll_deg:.3f} deg, "
+            f"FOV {res.fov_deg:.4f} deg\n"
+            f"matched {res.matched} of {len(res.xy_px)} stars, rms {res.rms_arcsec:.1f} arcsec, "
+            f"p_false {ident.p_false:.1e}, {res.time_ms:.0f} ms")
+
+
+def run(args) -> int:
+    from shipstar.identify import solve_image
+
+    res = solve_image(args.image, camera=args.camera, fov_deg=args.fov_deg,
+                      fov_tolerance=args.fov_tolerance, mag_limit=args.mag_limit,
+                      centroid_error_px=args.centroid_error_px,
+                      threshold_sigma=args.threshold_sigma, max_stars=args.max_stars)
+    if args.json:
+        emit_json(res.as_json_dict())
+    else:
+        print(_summary(res))
+    return 0 if res.solved else 1

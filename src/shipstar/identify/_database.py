@@ -1,0 +1,434 @@
+"""The navigation star database: stars, a 4-star pattern index and a sky grid.
+
+Built once per (field of view, magnitude limit, epoch, parameters) from
+:func:`shipstar.sky.catalog.navigation_catalog` and cached as ``.npz`` under
+``cache_dir()/identify/``; the file records the database version and every parameter
+it was built for, and is rebuilt when any of them (or the catalog) changes.
+
+Patterns (tetra3-style "lattice fields"): a Fibonacci lattice of field centres covers
+the sky ``oversampling`` times over; in the circle of diameter ``pattern_fov`` around
+each centre the ``stars_per_field`` brightest stars give every 4-star pattern they
+contain.  The union, de-duplicated, is indexed by the exact integer key of the
+quantised sorted edge ratios (see :mod:`._patterns`), mixed by a bijective hash and
+stored in two levels: the high bits select a segment (CSR offsets, about six patterns
+a segment), the low bits are kept per pattern as ``uint16``.  A pattern costs 10 bytes
+(4 x uint16 star indices + 2).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+import time
+import zipfile
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from shipstar.errors import ShipstarError
+from shipstar.identify import _patterns as pat
+from shipstar.identify import _skygrid
+from shipstar.units import ASEC2RAD, DEG2RAD, RAD2DEG
+
+__all__ = ["StarDatabase", "DatabaseParams", "build_database_from_params", "DATABASE_VERSION",
+           "default_mag_limit"]
+
+#: bump when the file layout or the pattern rules change: old cache files are rebuilt
+DATABASE_VERSION = 3
+
+#: odd multiplier of the key hash (golden ratio * 2**29, made odd)
+_HASH_MULTIPLIER = 331804481
+#: patterns per segment aimed at by the two-level key index (rounded to a power of 2)
+_SEGMENT_TARGET = 12
+#: average number of catalog stars in a field at the default magnitude limit
+DEFAULT_STARS_PER_FIELD = 35.0
+
+
+@dataclass(frozen=True)
+class DatabaseParams:
+    """Everything a database depends on (its cache key)."""
+
+    fov_x_rad: float                 # nominal field across the image width
+    fov_y_rad: float                 # ... across the height
+    fov_tolerance: float             # relative uncertainty of the fields (focal length)
+    pixel_scale_rad: float           # nominal pixel scale (centroid errors of unit vectors)
+    pattern_fov_rad: float           # diameter of the pattern circles (narrowest field)
+    mag_limit: float
+    epoch_jyear: float
+    min_separation_arcsec: float
+    bins: int = 50
+    stars_per_field: int = 7
+    oversampling: int = 30
+    min_pattern_frac: float = 0.1    # smallest largest-edge, as a fraction of pattern_fov
+    camera_name: str = ""
+
+    def as_json(self) -> str:
+        d = dict(self.__dict__)
+        d["version"] = DATABASE_VERSION
+        return json.dumps(d, sort_keys=True)
+
+
+@dataclass(frozen=True, eq=False)
+class StarDatabase:
+    """Navigation stars, 4-star pattern index and sky grid for one field of view.
+
+    Attributes
+    ----------
+    params : DatabaseParams
+    hip : ndarray (S,), int32
+        HIP numbers, brightest star first (rows of every other star array).
+    u_icrs : ndarray (S, 3), float32
+        ICRS unit vectors at ``params.epoch_jyear`` (proper motion applied); float32
+        (0.01 arcsec) keeps the A1 database under 5 MB.  Precise places come from the
+        catalog by HIP number.
+    mag : ndarray (S,), float32
+        Hipparcos Hp magnitude.
+    pattern_stars : ndarray (P, 4), uint16 or uint32
+        Star rows of each pattern, patterns sorted by key.
+    key_lo : ndarray (P,), uint16
+        Low ``lo_bits`` bits of each pattern's hashed key.
+    key_hi_start : ndarray (2**hi_bits + 1,), int32
+        Patterns whose hashed key has high bits ``h`` are rows
+        ``key_hi_start[h]:key_hi_start[h+1]``.
+    cell_start, cell_index : ndarray
+        Sky grid (CSR): stars within ``query_radius_rad`` of every point of a cell.
+    grid_n : int
+        Cells per cube-face edge.
+    query_radius_rad : float
+    build_time_s : float
+        Time it took to build (not to load) this database.
+    catalog_digest : str
+        Digest of the navigation catalog rows used.
+    """
+
+    params: DatabaseParams
+    hip: np.ndarray
+    u_icrs: np.ndarray
+    mag: np.ndarray
+    pattern_stars: np.ndarray
+    key_lo: np.ndarray
+    key_hi_start: np.ndarray
+    cell_start: np.ndarray
+    cell_index: np.ndarray
+    grid_n: int
+    query_radius_rad: float
+    build_time_s: float
+    catalog_digest: str
+    _key_bits: int = field(init=False, repr=False)
+    _lo_bits: int = field(init=False, repr=False)
+
+    def __post_init__(self):
+        for name in ("hip", "u_icrs", "mag", "pattern_stars", "key_lo", "key_hi_start",
+                     "cell_start", "cell_index"):
+            getattr(self, name).setflags(write=False)
+        key_bits = _key_bits(self.params.bins)
+        n_seg = self.key_hi_start.shape[0] - 1
+        hi_bits = int(round(np.log2(n_seg)))
+        if n_seg != 1 << hi_bits or not 0 <= key_bits - hi_bits <= 16:
+            raise ShipstarError("corrupt star database: bad key index size")
+        object.__setattr__(self, "_key_bits", key_bits)
+        object.__setattr__(self, "_lo_bits", key_bits - hi_bits)
+
+    # ------------------------------------------------------------------ sizes
+    @property
+    def n_stars(self) -> int:
+        """Number of navigation stars."""
+        return int(self.hip.shape[0])
+
+    @property
+    def n_patterns(self) -> int:
+        """Number of 4-star patterns in the index."""
+        return int(self.pattern_stars.shape[0])
+
+    @property
+    def size_bytes(self) -> int:
+        """Bytes of every array the solver holds in memory (what the file stores)."""
+        return int(sum(a.nbytes for a in (self.hip, self.u_icrs, self.mag, self.pattern_stars,
+                                          self.key_lo, self.key_hi_start, self.cell_start,
+                                          self.cell_index)))
+
+    @property
+    def fov_deg(self) -> float:
+        """Nominal horizontal field of view the database was built for (degrees)."""
+        return self.params.fov_x_rad * RAD2DEG
+
+    def __repr__(self) -> str:
+        p = self.params
+        return (f"StarDatabase({self.n_stars} stars Hp <= {p.mag_limit:g}, {self.n_patterns} "
+                f"patterns, pattern field {p.pattern_fov_rad * RAD2DEG:.3f} deg, "
+                f"{self.size_bytes / 1e6:.2f} MB)")
+
+    # ------------------------------------------------------------------ queries
+    def near(self, direction) -> np.ndarray:
+        """Rows of all stars within ``query_radius_rad`` of a unit vector (a superset),
+        brightest first; shape (M,)."""
+        c = _skygrid.cell_of_one(direction, self.grid_n)
+        return self.cell_index[self.cell_start[c]:self.cell_start[c + 1]]
+
+    def lookup(self, keys):
+        """Patterns whose key is one of ``keys``.
+
+        Parameters
+        ----------
+        keys : ndarray (K,), int64
+
+        Returns
+        -------
+        probe : ndarray (M,), int
+            Which key (row of ``keys``) each hit belongs to.
+        pattern : ndarray (M,), int
+            Row of ``pattern_stars``.
+        """
+        lo_bits = self._lo_bits
+        h = _hash_keys(np.asarray(keys, np.int64), self._key_bits)
+        hi = h >> lo_bits
+        lo = (h & ((1 << lo_bits) - 1)).astype(np.uint16)
+        start = self.key_hi_start[hi]
+        count = self.key_hi_start[hi + 1] - start
+        total = int(count.sum())
+        if total == 0:
+            return np.empty(0, np.intp), np.empty(0, np.intp)
+        probe = np.repeat(np.arange(keys.shape[0]), count)
+        rows = np.arange(total) + np.repeat(start - (np.cumsum(count) - count), count)
+        hit = self.key_lo[rows] == lo[probe]
+        return probe[hit], rows[hit]
+
+    @property
+    def key_bits(self) -> int:
+        """Bits of a pattern key (``ceil(log2(bins ** 5))``)."""
+        return self._key_bits
+
+    @property
+    def lo_bits(self) -> int:
+        """Bits of the hashed key stored per pattern (the rest select the segment)."""
+        return self._lo_bits
+
+
+def _key_bits(bins: int) -> int:
+    return int(np.ceil(np.log2(float(bins) ** 5)))
+
+
+def _hash_keys(keys, key_bits: int):
+    """Bijective mixing of ``key_bits``-bit keys (odd multiplier modulo 2**key_bits), so
+    that the high bits spread patterns evenly over the segments."""
+    return (keys * _HASH_MULTIPLIER) & ((1 << key_bits) - 1)
+
+
+# ------------------------------------------------------------------------------------
+# Building
+# ------------------------------------------------------------------------------------
+
+def default_mag_limit(fov_x_rad: float, fov_y_rad: float,
+                      stars_per_field: float = DEFAULT_STARS_PER_FIELD) -> float:
+    """Hp limit at which a field ``fov_x x fov_y`` holds ``stars_per_field`` stars on average.
+
+    From the all-sky cumulative star counts of the Hipparcos catalog (Hp), clipped to
+    3.5 .. 8.5.  35 stars a field (about Hp 7.3 for A1, 6.7 for a 12 deg field) keep
+    fields with fewer than 5 stars, after up to 3 are lost, below 0.1 %.
+    """
+    from shipstar.sky.catalog import load_hipparcos
+
+    mag = np.sort(np.asarray(load_hipparcos().mag, float))
+    mag = mag[np.isfinite(mag)]
+    area_fraction = fov_x_rad * fov_y_rad / (4.0 * np.pi)
+    needed = int(np.clip(stars_per_field / area_fraction, 1, mag.size - 1))
+    return float(np.clip(np.round(mag[needed], 2), 3.5, 8.5))
+
+
+def _fibonacci_sphere(n_half: int) -> np.ndarray:
+    """``2 n_half + 1`` nearly uniform points on the sphere (Gonzalez 2010)."""
+    i = np.arange(-n_half, n_half + 1)
+    z = i / (n_half + 0.5)
+    r = np.sqrt(1.0 - z * z)
+    theta = np.pi * (3.0 - np.sqrt(5.0)) * i
+    return np.stack([r * np.cos(theta), r * np.sin(theta), z], axis=-1)
+
+
+def _field_patterns(u, params: DatabaseParams) -> np.ndarray:
+    """Unique patterns (P, 4) of the brightest stars of every lattice field."""
+    from scipy.spatial import cKDTree
+
+    radius = 0.5 * params.pattern_fov_rad
+    n_fields = 4.0 * np.pi / (np.pi * radius * radius)
+    centres = _fibonacci_sphere(int(np.ceil(0.5 * n_fields * params.oversampling)))
+    lists = cKDTree(u).query_ball_point(centres, 2.0 * np.sin(0.5 * radius), return_sorted=True)
+    m = params.stars_per_field
+    top = np.full((len(lists), m), -1, dtype=np.int64)
+    for k, members in enumerate(lists):
+        head = members[:m]
+        top[k, :len(head)] = head
+    combos = pat.ordered_combinations(m)
+    cand = top[:, combos].reshape(-1, 4)
+    cand = cand[np.all(cand >= 0, axis=1)]
+    s = np.int64(u.shape[0])
+    code = np.unique(((cand[:, 0] * s + cand[:, 1]) * s + cand[:, 2]) * s + cand[:, 3])
+    return np.stack([code // s**3, (code // s**2) % s, (code // s) % s, code % s], axis=1)
+
+
+def _index_patterns(u, patterns, params: DatabaseParams):
+    """Keep usable patterns, sort them by key; two-level key arrays."""
+    edges = pat.pattern_edges_rad(u[patterns])
+    ratios, largest = pat.edge_ratios(edges)
+    keep = largest >= params.min_pattern_frac * params.pattern_fov_rad
+    patterns, ratios = patterns[keep], ratios[keep]
+    key_bits = _key_bits(params.bins)
+    hashed = _hash_keys(pat.pattern_keys(ratios, params.bins), key_bits)
+    hi_bits = int(np.clip(np.round(np.log2(max(patterns.shape[0], 1) / _SEGMENT_TARGET)),
+                          key_bits - 16, key_bits))
+    lo_bits = key_bits - hi_bits
+    order = np.argsort(hashed, kind="stable")
+    hashed, patterns = hashed[order], patterns[order]
+    key_hi_start = np.searchsorted(hashed >> lo_bits, np.arange((1 << hi_bits) + 1)).astype(np.int32)
+    key_lo = (hashed & ((1 << lo_bits) - 1)).astype(np.uint16)
+    dtype = np.uint16 if u.shape[0] <= np.iinfo(np.uint16).max else np.uint32
+    return patterns.astype(dtype), key_lo, key_hi_start
+
+
+def _catalog_digest(catalog) -> str:
+    h = hashlib.sha256()
+    h.update(np.ascontiguousarray(catalog.hip, dtype=np.int64).tobytes())
+    h.update(np.ascontiguousarray(catalog.mag, dtype=np.float64).tobytes())
+    h.update(np.ascontiguousarray(catalog.ra_rad, dtype=np.float64).tobytes())
+    return h.hexdigest()[:16]
+
+
+def build_database_from_params(params: DatabaseParams, catalog=None) -> StarDatabase:
+    """Build a database (no cache).  ``catalog`` defaults to the navigation catalog."""
+    t0 = time.perf_counter()
+    if catalog is None:
+        from shipstar.sky.catalog import navigation_catalog
+
+        catalog = navigation_catalog(params.mag_limit, params.min_separation_arcsec)
+    if len(catalog) < 4:
+        raise ShipstarError(f"only {len(catalog)} catalog stars brighter than Hp "
+                            f"{params.mag_limit}: cannot build a star database")
+    order = np.lexsort((np.asarray(catalog.hip), np.asarray(catalog.mag)))
+    hip = np.asarray(catalog.hip, np.int32)[order]
+    mag = np.asarray(catalog.mag, np.float32)[order]
+    u = np.ascontiguousarray(catalog.unit_icrs(params.epoch_jyear)[order], dtype=np.float32)
+    patterns = _field_patterns(u, params)
+    pattern_stars, key_lo, key_hi_start = _index_patterns(u, patterns, params)
+    grow = 1.0 + params.fov_tolerance
+    half_diag = np.arctan(grow * np.hypot(np.tan(0.5 * params.fov_x_rad),
+                                          np.tan(0.5 * params.fov_y_rad)))
+    query_radius = float(half_diag * 1.02 + 1e-4)
+    if query_radius >= 0.45 * np.pi:
+        raise ShipstarError(f"field of view too wide for the star database (half diagonal "
+                            f"{half_diag * RAD2DEG:.1f} deg, at most 80 deg)")
+    grid_n = _skygrid.grid_size_for_radius(query_radius)
+    cell_start, cell_index = _skygrid.build_cell_lists(u, query_radius, grid_n)
+    return StarDatabase(
+        params=params, hip=hip, u_icrs=u, mag=mag, pattern_stars=pattern_stars,
+        key_lo=key_lo, key_hi_start=key_hi_start, cell_start=cell_start,
+        cell_index=cell_index, grid_n=grid_n, query_radius_rad=query_radius,
+        build_time_s=time.perf_counter() - t0, catalog_digest=_catalog_digest(catalog),
+    )
+
+
+# ------------------------------------------------------------------------------------
+# Cache
+# ------------------------------------------------------------------------------------
+
+_ARRAYS = ("hip", "u_icrs", "mag", "pattern_stars", "key_lo", "key_hi_start", "cell_start",
+           "cell_index")
+_MEMO: dict[str, StarDatabase] = {}
+
+
+def _cache_path(params: DatabaseParams):
+    from shipstar.sky.catalog import cache_dir
+
+    digest = hashlib.sha256(params.as_json().encode()).hexdigest()[:20]
+    return cache_dir() / "identify" / f"stardb_v{DATABASE_VERSION}_{digest}.npz"
+
+
+def _read(path, params: DatabaseParams, catalog_digest: str) -> StarDatabase | None:
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if str(z["params_json"]) != params.as_json():
+                return None
+            if str(z["catalog_digest"]) != catalog_digest:
+                return None
+            arrays = {name: z[name] for name in _ARRAYS}
+            return StarDatabase(params=params, **arrays, grid_n=int(z["grid_n"]),
+                                query_radius_rad=float(z["query_radius_rad"]),
+                                build_time_s=float(z["build_time_s"]),
+                                catalog_digest=catalog_digest)
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+        return None
+
+
+def _write(path, db: StarDatabase) -> None:
+    tmp = None
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
+        with os.fdopen(fd, "wb") as fh:
+            np.savez(fh, params_json=np.array(db.params.as_json()),
+                     catalog_digest=np.array(db.catalog_digest), grid_n=np.array(db.grid_n),
+                     query_radius_rad=np.array(db.query_radius_rad),
+                     build_time_s=np.array(db.build_time_s),
+                     **{name: getattr(db, name) for name in _ARRAYS})
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except OSError:
+        if tmp is not None and os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def cached_database(params: DatabaseParams, use_cache: bool = True) -> StarDatabase:
+    """Memory memo -> disk cache -> build (then stored in both)."""
+    from shipstar.sky.catalog import navigation_catalog
+
+    catalog = navigation_catalog(params.mag_limit, params.min_separation_arcsec)
+    digest = _catalog_digest(catalog)
+    memo_key = params.as_json() + digest
+    if use_cache and memo_key in _MEMO:
+        return _MEMO[memo_key]
+    path = _cache_path(params)
+    db = _read(path, params, digest) if use_cache else None
+    if db is None:
+        db = build_database_from_params(params, catalog)
+        if use_cache:
+            _write(path, db)
+    if use_cache:
+        if len(_MEMO) >= 8:
+            _MEMO.pop(next(iter(_MEMO)))
+        _MEMO[memo_key] = db
+    return db
+
+
+def params_for_field(fov_x_rad: float, fov_y_rad: float, *, mag_limit=None, fov_tolerance=0.0,
+                     epoch_jyear=2025.0, pixel_scale_rad=None, camera_name="",
+                     **pattern_options) -> DatabaseParams:
+    """Database parameters for a ``fov_x x fov_y`` field known to +-``fov_tolerance``."""
+    for name, value in (("fov_x", fov_x_rad), ("fov_y", fov_y_rad)):
+        if not np.isfinite(value) or not 0.2 * DEG2RAD <= value <= 60.0 * DEG2RAD:
+            raise ShipstarError(f"{name}_deg must be within 0.2 .. 60 deg, got {value * RAD2DEG:g}")
+    if not np.isfinite(fov_tolerance) or not 0.0 <= fov_tolerance <= 0.5:
+        raise ShipstarError(f"fov_tolerance must be within 0 .. 0.5, got {fov_tolerance}")
+    if mag_limit is None:
+        mag_limit = default_mag_limit(fov_x_rad, fov_y_rad)
+    mag_limit = float(mag_limit)
+    if not np.isfinite(mag_limit) or not -2.0 <= mag_limit <= 12.0:
+        raise ShipstarError(f"mag_limit must be within -2 .. 12, got {mag_limit}")
+    limits = {"bins": (8, 64), "stars_per_field": (4, 12), "oversampling": (1, 1000),
+              "min_pattern_frac": (0.0, 0.9)}
+    for name, value in pattern_options.items():
+        if name not in limits:
+            raise ShipstarError(f"unknown database option {name!r} (options: {', '.join(limits)})")
+        lo, hi = limits[name]
+        if not (isinstance(value, (int, float)) and lo <= value <= hi):
+            raise ShipstarError(f"{name} must be within {lo} .. {hi}, got {value!r}")
+    if pixel_scale_rad is None:
+        pixel_scale_rad = fov_x_rad / 1000.0
+    min_sep_arcsec = round(float(2.5 * pixel_scale_rad / ASEC2RAD), 1)
+    return DatabaseParams(
+        fov_x_rad=float(fov_x_rad), fov_y_rad=float(fov_y_rad), fov_tolerance=float(fov_tolerance),
+        pixel_scale_rad=float(pixel_scale_rad),
+        pattern_fov_rad=float(min(fov_x_rad, fov_y_rad) * (1.0 - fov_tolerance)),
+        mag_limit=mag_limit, epoch_jyear=float(epoch_jyear),
+        min_separation_arcsec=min(min_sep_arcsec, 3600.0), camera_name=camera_name,
+        **pattern_options,
+    )

@@ -1,0 +1,118 @@
+"""The navigation star database: size, index consistency, sky grid, cache, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from shipstar.errors import ShipstarError
+from shipstar.identify import build_database
+from shipstar.identify import _database, _patterns as pat
+from shipstar.sky.catalog import navigation_catalog
+from shipstar.units import DEG2RAD
+
+
+def test_a1_database_fits_in_5_mb(db_a1, cam_a1):
+    assert db_a1.size_bytes < 5_000_000
+    assert db_a1.n_patterns > 200_000
+    assert 7.1 <= db_a1.params.mag_limit <= 7.5
+    assert db_a1.params.fov_x_rad == pytest.approx(cam_a1.fov_deg * DEG2RAD)
+
+
+def test_stars_are_the_navigation_catalog_brightest_first(db12):
+    nav = navigation_catalog(db12.params.mag_limit, db12.params.min_separation_arcsec)
+    assert db12.n_stars == len(nav)
+    assert np.all(np.diff(db12.mag) >= 0)
+    idx = nav.index_of_hip(db12.hip)
+    np.testing.assert_allclose(db12.u_icrs, nav.unit_icrs(db12.params.epoch_jyear)[idx],
+                               rtol=0, atol=6e-8)                     # float32 storage
+
+
+def test_default_magnitude_gives_about_35_stars_a_field(db12, cam12):
+    rng = np.random.default_rng(4)
+    b = rng.normal(size=(3000, 3))
+    b /= np.linalg.norm(b, axis=1, keepdims=True)
+    half = 0.5 * cam12.fov_deg * DEG2RAD
+    counts = []
+    for v in b:
+        # stars inside the square field around v (any roll: use the inscribed/circumscribed
+        # circles' mean area, i.e. a circle of the same area as the square)
+        cosr = np.cos(np.sqrt(4 * half * half / np.pi))
+        counts.append(np.count_nonzero(db12.u_icrs @ v >= cosr))
+    assert 31 <= np.mean(counts) <= 39
+
+
+def test_every_pattern_is_found_by_its_own_key(db12):
+    rng = np.random.default_rng(5)
+    rows = rng.choice(db12.n_patterns, 2000, replace=False)
+    stars = db12.pattern_stars[rows].astype(np.intp)
+    ratios, largest = pat.edge_ratios(pat.pattern_edges_rad(db12.u_icrs[stars]))
+    probe, found = db12.lookup(pat.pattern_keys(ratios, db12.params.bins))
+    hits = set(zip(probe.tolist(), found.tolist()))
+    assert all((i, r) in hits for i, r in enumerate(rows.tolist()))
+    assert np.all(largest <= db12.params.pattern_fov_rad + 1e-12)
+    assert np.all(largest >= db12.params.min_pattern_frac * db12.params.pattern_fov_rad)
+
+
+def test_sky_grid_returns_every_star_within_the_query_radius(db12):
+    rng = np.random.default_rng(6)
+    b = rng.normal(size=(500, 3))
+    b /= np.linalg.norm(b, axis=1, keepdims=True)
+    b[:6] = np.vstack([np.eye(3), -np.eye(3)])                # cube-face centres
+    cosr = np.cos(db12.query_radius_rad)
+    for v in b:
+        near = db12.near(v)
+        assert np.all(np.diff(near.astype(np.int64)) > 0)     # brightest first, no repeats
+        truth = np.flatnonzero(db12.u_icrs @ v >= cosr)
+        assert set(truth.tolist()) <= set(near.tolist())
+
+
+@pytest.fixture
+def tmp_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("SHIPSTAR_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(_database, "_MEMO", {})
+    return tmp_path / "identify"
+
+
+def test_cache_is_written_reused_and_keyed_by_parameters(tmp_cache):
+    db = build_database(12.0, mag_limit=5.0)
+    files = sorted(tmp_cache.glob("stardb_*.npz"))
+    assert len(files) == 1
+    _database._MEMO.clear()
+    again = build_database(12.0, mag_limit=5.0)
+    assert again is not db and again.build_time_s == db.build_time_s     # loaded, not rebuilt
+    np.testing.assert_array_equal(again.pattern_stars, db.pattern_stars)
+    other = build_database(12.0, mag_limit=5.2)
+    assert other.n_stars > db.n_stars
+    assert len(list(tmp_cache.glob("stardb_*.npz"))) == 2
+
+
+def test_cache_file_with_other_parameters_or_version_is_rebuilt(tmp_cache, monkeypatch):
+    db = build_database(12.0, mag_limit=5.0)
+    (path,) = tmp_cache.glob("stardb_*.npz")
+    with np.load(path) as z:
+        data = dict(z)
+    data["params_json"] = np.array(str(data["params_json"]).replace('"bins": 50', '"bins": 40'))
+    np.savez(path, **data)
+    _database._MEMO.clear()
+    rebuilt = build_database(12.0, mag_limit=5.0)
+    assert rebuilt.build_time_s != db.build_time_s
+    monkeypatch.setattr(_database, "DATABASE_VERSION", _database.DATABASE_VERSION + 1)
+    _database._MEMO.clear()
+    build_database(12.0, mag_limit=5.0)
+    assert len(list(tmp_cache.glob("stardb_*.npz"))) == 2
+
+
+@pytest.mark.parametrize("args, kwargs, words", [
+    ((0.05,), {}, "fov_x_deg"),
+    ((90.0,), {}, "fov_x_deg"),
+    ((10.0,), {"mag_limit": float("nan")}, "mag_limit"),
+    ((10.0,), {"fov_tolerance": 0.9}, "fov_tolerance"),
+    ((10.0,), {"epoch_jyear": 2451545.0}, "epoch_jyear"),
+    (("ten",), {}, "camera_or_fov"),
+    (((1, 2, 3),), {}, "camera_or_fov"),
+])
+def test_bad_arguments_raise_one_line_errors(args, kwargs, words):
+    with pytest.raises(ShipstarError, match=words) as info:
+        build_database(*args, **kwargs)
+    assert "\n" not in str(info.value)

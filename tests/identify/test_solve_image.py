@@ -1,0 +1,103 @@
+"""solve_image: extraction + identification + attitude on images.
+
+References: the true attitude of frames rendered by ``shipstar.simulate``, and for the
+real photos of /work/shared/real-images the solutions of tetra3rs / cedar-solve stored
+in ``data/real_images_reference.json`` by ``benchmarks/bench_real_images.py``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from shipstar.errors import ShipstarError
+from shipstar.frames import rotation_angle_rad, unit_from_ra_dec
+from shipstar.identify import solve_image
+from shipstar.identify._sim import random_attitudes
+
+REAL = Path("/work/shared/real-images")
+REFERENCE = json.loads((Path(__file__).parent / "data" / "real_images_reference.json").read_text())
+
+
+@pytest.mark.parametrize("camera_name", ["seed004", "A1"])
+def test_rendered_frames_give_the_true_attitude(camera_name):
+    from shipstar.camera import camera_preset
+    from shipstar.simulate import simulate_frame
+
+    cam = camera_preset(camera_name)
+    rng = np.random.default_rng(41)
+    for k, C in enumerate(random_attitudes(4, rng)):
+        frame = simulate_frame(cam, C_icrs_from_sensor=C, seed=k)
+        res = solve_image(frame.image, camera=cam)
+        assert res.solved, res.reason
+        bore = math.acos(min(1.0, res.C_icrs_from_sensor[:, 0] @ C[:, 0]))
+        assert bore < 0.3 * cam.pixel_mm / cam.f_mm                 # well under a pixel
+        assert rotation_angle_rad(res.C_icrs_from_sensor.T @ C) < 3 * cam.pixel_mm / cam.f_mm
+        truth = dict(zip(map(tuple, np.round(frame.stars.xy_px, 0)), frame.stars.hip))
+        for xy, hip in zip(res.xy_px, res.hip):
+            if hip > 0 and tuple(np.round(xy, 0)) in truth:
+                assert truth[tuple(np.round(xy, 0))] == hip
+        assert res.fov_deg == pytest.approx(cam.fov_deg)
+
+
+def test_fov_only_recovers_the_field_of_view():
+    from shipstar.camera import camera_preset
+    from shipstar.simulate import simulate_frame
+
+    cam = camera_preset("seed004")
+    rng = np.random.default_rng(42)
+    (C,) = random_attitudes(1, rng)
+    frame = simulate_frame(cam, C_icrs_from_sensor=C, seed=3)
+    res = solve_image(frame.image, fov_deg=cam.fov_deg * 1.07)
+    assert res.solved, res.reason
+    assert res.fov_deg == pytest.approx(cam.fov_deg, rel=2e-3)
+    assert math.acos(min(1.0, res.C_icrs_from_sensor[:, 0] @ C[:, 0])) < cam.pixel_mm / cam.f_mm
+
+
+def _sep_deg(a_ra, a_dec, b_ra, b_dec):
+    a = unit_from_ra_dec(math.radians(a_ra), math.radians(a_dec))
+    b = unit_from_ra_dec(math.radians(b_ra), math.radians(b_dec))
+    return math.degrees(math.atan2(np.linalg.norm(np.cross(a, b)), a @ b))
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not REAL.is_dir(), reason="real images not present")
+@pytest.mark.parametrize("name", sorted(REFERENCE))
+def test_real_photos_agree_with_the_anchors(name):
+    ref = REFERENCE[name]
+    res = solve_image(REAL / f"{name}.jpg", fov_deg=ref["fov_deg_nominal"])
+    assert res.solved, res.reason
+    assert _sep_deg(res.ra_deg, res.dec_deg, ref["ra_deg"], ref["dec_deg"]) * 3600 < 60
+    assert abs((res.roll_deg - ref["roll_deg"] + 180) % 360 - 180) < 0.15
+    assert res.fov_deg == pytest.approx(ref["fov_deg"], rel=0.02)
+    assert res.matched >= 10 and res.identification.p_false < 1e-6
+
+
+def test_flat_image_is_not_solved():
+    rng = np.random.default_rng(43)
+    img = (200 + rng.normal(0, 4, size=(300, 400))).astype(np.uint16)
+    res = solve_image(img, fov_deg=10.0)
+    assert not res.solved and res.reason
+    assert np.all(np.isnan(res.C_icrs_from_sensor)) and math.isnan(res.ra_deg)
+    d = res.as_json_dict()
+    assert d["solved"] is False and d["ra_deg"] is None and d["reason"] == res.reason
+
+
+@pytest.mark.parametrize("kw, words", [
+    ({}, "exactly one"),
+    ({"fov_deg": 10.0, "camera": "A1"}, "exactly one"),
+    ({"fov_deg": 0.1}, "fov_deg"),
+    ({"camera": "A1"}, "camera"),
+])
+def test_bad_arguments_raise(kw, words):
+    with pytest.raises(ShipstarError, match=words):
+        solve_image(np.zeros((50, 60), np.uint16), **kw)
+
+
+def test_image_must_be_2d():
+    with pytest.raises(ShipstarError, match="2-D"):
+        solve_image(np.zeros((5, 5, 3)), fov_deg=10.0)
