@@ -387,7 +387,7 @@ def test_truth_json_schema_ship(tmp_path, a1):
                            site=DOCK_SITE, weather=DOCK_WEATHER, seed=2)
     _, truth_path = write_frame(frame, tmp_path / "dock.fits")
     t = read_truth(tmp_path / "dock.fits")
-    assert t["frame"] == "hor" and t["refraction_model"] == "almanac"
+    assert t["frame"] == "hor" and t["refraction_model"] == "erfa"
     # physical check (conventions.md): the boresight looks at azimuth 231.4746 deg, elevation 40 deg
     assert t["sensor_az_deg"] == pytest.approx(231.4746, abs=1e-9)
     assert t["sensor_el_deg"] == pytest.approx(40.0, abs=1e-9)
@@ -421,7 +421,7 @@ def test_truth_of_another_image_is_detected(tmp_path, a1, orion_frame):
 def test_icrs_attitude_seen_from_a_site(a1):
     C = C_icrs_from_sensor(83.8 * DEG2RAD, -5.4 * DEG2RAD, 0.0)
     frame = simulate_frame(a1, C_icrs_from_sensor=C, utc_iso=DOCK_UTC, site=DOCK_SITE, seed=4)
-    assert frame.frame == "hor" and frame.refraction_model == "almanac"
+    assert frame.frame == "hor" and frame.refraction_model == "erfa"
     np.testing.assert_allclose(frame.C_hor_from_sensor, frame.context.C_hor_from_icrs_approx @ C, atol=1e-15)
     space = simulate_stars(a1, C, epoch_jyear=frame.epoch_jyear)
     common, i, j = np.intersect1d(frame.stars.hip, space.hip, return_indices=True)

@@ -127,7 +127,7 @@ def ship_angles_jacobian(C_hor_from_deck) -> np.ndarray:
     dcol0 = np.stack([zero, -C[..., :, 2], C[..., :, 1]], axis=-1)  # (..., 3 rows, 3 phis)
     dcol1 = np.stack([C[..., :, 2], zero, -C[..., :, 0]], axis=-1)
     dcol2 = np.stack([-C[..., :, 1], C[..., :, 0], zero], axis=-1)
-    c00, c20, c10 = C[..., 0, 0], C[..., 2, 0], C[..., 1, 0]
+    c00, c20 = C[..., 0, 0], C[..., 2, 0]
     c11, c12 = C[..., 1, 1], C[..., 1, 2]
     h2 = c00**2 + c20**2
     dK = (c00[..., None] * dcol0[..., 2, :] - c20[..., None] * dcol0[..., 0, :]) / h2[..., None]

@@ -66,7 +66,7 @@ def _sky(truth, *, n=20, seed=0, el_deg=(45.0, 85.0), mag_limit=9.0, min_stars=8
     return out
 
 
-def _frames(sky, *, noise_px=NOISE_PX, seed=1, refraction_model="almanac", camera_name="seed002"):
+def _frames(sky, *, noise_px=NOISE_PX, seed=1, refraction_model="erfa", camera_name="seed002"):
     rng = np.random.default_rng(seed)
     frames = []
     for k, s in enumerate(sky):

@@ -42,7 +42,7 @@ def test_readme_quick_start_prints_a_table(env):
     proc = _run(env, *DOCK, "--mag-limit", "2", "--pressure-hpa", "1021.7", "--temperature-c", "11.1")
     assert proc.returncode == 0, proc.stderr
     out = proc.stdout
-    assert "Earth orientation: measured" in out and "refraction: almanac, 1021.7 hPa, 11.1 C" in out
+    assert "Earth orientation: measured" in out and "refraction: erfa, 1021.7 hPa, 11.1 C" in out
     rows = [line.split() for line in out.splitlines() if line.strip() and line.split()[0].isdigit()]
     hips = [int(r[0]) for r in rows]
     assert SIRIUS in hips and BETELGEUSE in hips

@@ -60,7 +60,7 @@ def test_ship_form_with_smear_and_false_objects(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "wrote" in proc.stdout and "seed 9" in proc.stdout
     truth = json.loads((tmp_path / "sub" / "dock.truth.json").read_text())
-    assert truth["frame"] == "hor" and truth["refraction_model"] == "almanac"
+    assert truth["frame"] == "hor" and truth["refraction_model"] == "erfa"
     assert truth["sensor_az_deg"] == pytest.approx(231.4746, abs=1e-9)
     assert truth["sensor_el_deg"] == pytest.approx(40.0, abs=1e-9)
     assert truth["weather"] == {"pressure_hpa": 1021.7, "temperature_c": 11.1, "relative_humidity": 0.0,

@@ -205,7 +205,7 @@ def _frame_from(xy, hip, meta: _Meta, overrides: dict, catalog):
         weather = Weather(pressure_hpa=meta.pressure_hpa,
                           temperature_c=10.0 if meta.temperature_c is None else meta.temperature_c,
                           relative_humidity=meta.relative_humidity or 0.0)
-    model = overrides.get("refraction_model") or meta.refraction_model or "almanac"
+    model = overrides.get("refraction_model") or meta.refraction_model or "erfa"
     places = "apparent" if site is not None else meta.places
     return calibration_frame(xy, hip, jd, catalog=catalog, site=site, weather=weather,
                              refraction_model=model, places=places, label=meta.label,

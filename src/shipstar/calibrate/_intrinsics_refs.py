@@ -35,7 +35,7 @@ PLACES = ("apparent", "catalog")
 
 
 def reference_directions(hip, utc_jd1: float, utc_jd2: float, *, catalog=None, site=None,
-                         weather=None, refraction_model: str = "almanac", eop=None,
+                         weather=None, refraction_model: str = "erfa", eop=None,
                          places: str = "apparent") -> np.ndarray:
     """Unit directions ``(N, 3)`` of Hipparcos stars as a sensor sees them.
 

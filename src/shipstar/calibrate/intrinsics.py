@@ -137,7 +137,7 @@ def _float_array(value, ncol: int, what: str) -> np.ndarray:
 
 
 def calibration_frame(xy_px, hip, utc, *, catalog=None, site=None, weather=None,
-                      refraction_model: str = "almanac", eop=None, places: str = "apparent",
+                      refraction_model: str = "erfa", eop=None, places: str = "apparent",
                       label: str = "", camera_name=None, image_shape_hw=None) -> CalibrationFrame:
     """A :class:`CalibrationFrame` from centroids and HIP numbers at a time.
 

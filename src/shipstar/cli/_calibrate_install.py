@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from shipstar.cli._common import emit_json, finite_float, latitude_deg
+from shipstar.cli._common import emit_json, finite_float, fraction, latitude_deg
 
 __all__ = ["add_install_parser", "run_install"]
 
@@ -29,20 +29,6 @@ Exit codes: 0 every frame solved; 1 written, but some frames failed (listed); 2 
 """
 
 
-def _one_line_errors(parser: argparse.ArgumentParser) -> None:
-    def error(message):
-        parser.exit(2, f"{parser.prog}: error: {message}\n")
-
-    parser.error = error
-
-
-def _fraction(text: str) -> float:
-    value = finite_float(text)
-    if not 0.0 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f"must be within [0, 1], got {value}")
-    return value
-
-
 def add_install_parser(subparsers) -> argparse.ArgumentParser:
     """Add ``install`` to the ``calibrate`` group's sub-parsers."""
     p = subparsers.add_parser(
@@ -50,7 +36,6 @@ def add_install_parser(subparsers) -> argparse.ArgumentParser:
         description="Calibrate a star sensor's installation angles (az, el, roll) relative to the deck from "
                     "frames taken in dock with the ship's true heading and level known (seed 000 section 3).",
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    _one_line_errors(p)
     p.add_argument("--frames", required=True, metavar="DIR", help="directory of the sensor's FITS frames")
     p.add_argument("--sensor", required=True, metavar="NAME", help="sensor name, e.g. A1")
     p.add_argument("--camera", required=True, metavar="NAME|FILE", help="camera preset or camera TOML file")
@@ -62,7 +47,7 @@ def add_install_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--roll-deg", type=finite_float, default=0.0, help="ship roll theta0 from the levels (deg)")
     p.add_argument("--pressure-hpa", required=True, type=finite_float, help="air pressure at the sensor (hPa)")
     p.add_argument("--temperature-c", required=True, type=finite_float, help="air temperature (C)")
-    p.add_argument("--relative-humidity", type=_fraction, default=0.0, help="0..1 (erfa model, default 0)")
+    p.add_argument("--relative-humidity", type=fraction, default=0.0, help="0..1 (erfa model, default 0)")
     p.add_argument("--refraction", choices=("erfa", "almanac", "none"), default="erfa",
                    help="refraction model (default erfa; almanac = the seeds' model)")
     p.add_argument("--refraction-mode", choices=("per-star", "boresight"), default="per-star",

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from shipstar.cli._common import emit_json, finite_float, latitude_deg
+from shipstar.cli._common import emit_json, finite_float, fraction, latitude_deg
 
 EPILOG = """\
 example (the seeds' dock, Jiangyin, 2013-03-15 20:16 local time):
@@ -27,13 +27,6 @@ its quality (measured, predicted, extrapolated) is reported.
 DEFAULT_MAG_LIMIT = 3.0
 
 
-def _fraction(text: str) -> float:
-    value = finite_float(text)
-    if not 0.0 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f"must be within [0, 1], got {value}")
-    return value
-
-
 def register(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "apparent", help="observed azimuth/elevation of stars at a time and place",
@@ -49,11 +42,11 @@ def register(subparsers) -> argparse.ArgumentParser:
                    help="deflection of the vertical, north-south component (arcsec, default 0)")
     p.add_argument("--eta-arcsec", type=finite_float, default=0.0,
                    help="deflection of the vertical, east-west component (arcsec, default 0)")
-    p.add_argument("--refraction", choices=("almanac", "erfa", "none"), default="almanac",
-                   help="refraction model (default almanac, the seeds' model)")
+    p.add_argument("--refraction", choices=("erfa", "almanac", "none"), default="erfa",
+                   help="refraction model (default erfa, good to 0.02'' above 15 deg; almanac = the seeds' model)")
     p.add_argument("--pressure-hpa", type=finite_float, default=1013.25, help="air pressure (hPa)")
     p.add_argument("--temperature-c", type=finite_float, default=10.0, help="air temperature (C)")
-    p.add_argument("--relative-humidity", type=_fraction, default=0.0,
+    p.add_argument("--relative-humidity", type=fraction, default=0.0,
                    help="relative humidity 0..1 (erfa model only)")
     p.add_argument("--wavelength-um", type=finite_float, default=0.55,
                    help="effective wavelength (um, erfa model only)")

@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from shipstar.cli._common import emit_json, finite_float, latitude_deg
+from shipstar.cli._common import emit_json, finite_float, fraction, latitude_deg
 
 __all__ = ["register"]
 
@@ -45,21 +45,6 @@ Exit codes: 0 calibrated; 1 the fit did not converge (nothing written); 2 bad in
 """
 
 
-def _one_line_errors(parser: argparse.ArgumentParser) -> None:
-    """argparse errors as one line on stderr (exit 2), like every shipstar error."""
-    def error(message):
-        parser.exit(2, f"{parser.prog}: error: {message}\n")
-
-    parser.error = error
-
-
-def _fraction(text: str) -> float:
-    value = finite_float(text)
-    if not 0.0 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f"must be within [0, 1], got {value}")
-    return value
-
-
 def register(subparsers) -> argparse.ArgumentParser:
     """Add the ``calibrate`` group with its sub-commands."""
     from shipstar.cli._calibrate_install import add_install_parser
@@ -69,7 +54,6 @@ def register(subparsers) -> argparse.ArgumentParser:
         description="Calibrate a star sensor: its intrinsic parameters from star frames, or its "
                     "installation angles from dock frames.",
         epilog=GROUP_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    _one_line_errors(p)
     sub = p.add_subparsers(dest="calibrate_command", metavar="{intrinsics,install}")
     _add_intrinsics_parser(sub)
     add_install_parser(sub)
@@ -88,7 +72,6 @@ def _add_intrinsics_parser(sub) -> argparse.ArgumentParser:
         description="Calibrate a star sensor's focal length, principal point and Weng distortion "
                     "from star frames alone, by the invariance of interstar angles (seed 002).",
         epilog=INTRINSICS_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    _one_line_errors(p)
     p.add_argument("--frames", required=True, metavar="DIR", help="directory of FITS frames or JSON star lists")
     p.add_argument("--camera", required=True, metavar="NAME|FILE", help="nominal camera: preset or TOML file")
     p.add_argument("--method", choices=("sine", "cosine", "joint"), default="joint",
@@ -105,9 +88,9 @@ def _add_intrinsics_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--height-m", type=finite_float, default=0.0, help="site height above WGS84 (m, default 0)")
     p.add_argument("--pressure-hpa", type=finite_float, help="air pressure at the sensor (hPa)")
     p.add_argument("--temperature-c", type=finite_float, help="air temperature (C, default 10)")
-    p.add_argument("--relative-humidity", type=_fraction, help="0..1 (erfa model only, default 0)")
-    p.add_argument("--refraction", choices=("almanac", "erfa", "none"),
-                   help="refraction model for frames with a site (default: the file's, else almanac)")
+    p.add_argument("--relative-humidity", type=fraction, help="0..1 (erfa model only, default 0)")
+    p.add_argument("--refraction", choices=("erfa", "almanac", "none"),
+                   help="refraction model for frames with a site (default: the file's, else erfa)")
     p.add_argument("--out", required=True, metavar="FILE.toml", help="calibrated camera file to write")
     p.add_argument("--plot", metavar="FILE.png",
                    help="residual-vector plot (default: next to --out, <name>.residuals.png)")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from shipstar.cli._common import emit_json, finite_float, latitude_deg
+from shipstar.cli._common import emit_json, finite_float, fraction, latitude_deg
 from shipstar.errors import ShipstarError
 
 __all__ = ["register", "run"]
@@ -35,20 +35,6 @@ Exit codes: 0 every frame solved; 1 written, but some frames failed; 2 bad input
 """
 
 
-def _one_line_errors(parser: argparse.ArgumentParser) -> None:
-    def error(message):
-        parser.exit(2, f"{parser.prog}: error: {message}\n")
-
-    parser.error = error
-
-
-def _fraction(text: str) -> float:
-    value = finite_float(text)
-    if not 0.0 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f"must be within [0, 1], got {value}")
-    return value
-
-
 def _name_value(text: str) -> tuple[str, str]:
     name, sep, value = text.partition("=")
     if not sep or not name.strip() or not value.strip():
@@ -69,7 +55,6 @@ def register(subparsers) -> argparse.ArgumentParser:
         description="Ship attitude over a session from one or more calibrated star sensors: per-frame "
                     "single-sensor attitudes, the seed's fusion rule and the joint solution (seed 003).",
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    _one_line_errors(p)
     p.add_argument("--sensor", required=True, action="append", type=_name_value, metavar="NAME=DIR",
                    help="a sensor and its frames directory (repeat for each sensor)")
     p.add_argument("--install", required=True, action="extend", nargs="+", metavar="FILE",
@@ -84,7 +69,7 @@ def register(subparsers) -> argparse.ArgumentParser:
     w = p.add_argument_group("weather (fixed, or a table)")
     w.add_argument("--pressure-hpa", type=finite_float, help="air pressure at the sensors (hPa)")
     w.add_argument("--temperature-c", type=finite_float, help="air temperature (C)")
-    w.add_argument("--relative-humidity", type=_fraction, default=0.0, help="0..1 (default 0)")
+    w.add_argument("--relative-humidity", type=fraction, default=0.0, help="0..1 (default 0)")
     w.add_argument("--weather", metavar="CSV", help="time_utc, pressure_hpa, temperature_c[, relative_humidity]")
     o = p.add_argument_group("processing")
     o.add_argument("--refraction", choices=("erfa", "almanac", "none"), default="erfa",

@@ -50,14 +50,6 @@ def _seed(text: str) -> int:
     return value
 
 
-def _one_line_errors(parser: argparse.ArgumentParser) -> None:
-    """Usage errors as one line on stderr (exit 2), like every other bad input."""
-    def error(message):
-        parser.exit(2, f"{parser.prog}: error: {message} (see --help)\n")
-
-    parser.error = error
-
-
 def register(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "simulate", help="render a synthetic star sensor frame (FITS) and its truth (JSON)",
@@ -65,7 +57,6 @@ def register(subparsers) -> argparse.ArgumentParser:
                     "magnitude (camera photon budget), Gaussian PSF, sky, dark, hot pixels, shot and read "
                     "noise, saturation, ADC; on Earth apparent places and per-star refraction.",
         epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    _one_line_errors(p)
     p.add_argument("--camera", default="A1", metavar="NAME|FILE",
                    help="camera preset (A1, A2, seed002, seed004) or camera TOML file (default A1)")
     a = p.add_argument_group("sensor attitude in ICRS")
@@ -89,7 +80,7 @@ def register(subparsers) -> argparse.ArgumentParser:
     t.add_argument("--pressure-hpa", type=finite_float, metavar="HPA", help="air pressure at the sensor (default 1013.25)")
     t.add_argument("--temperature-c", type=finite_float, metavar="C", help="air temperature (default 10)")
     t.add_argument("--relative-humidity", type=finite_float, metavar="FRACTION", help="0..1, erfa model only (default 0)")
-    t.add_argument("--refraction", choices=("almanac", "erfa", "none"), help="refraction model (default almanac)")
+    t.add_argument("--refraction", choices=("erfa", "almanac", "none"), help="refraction model (default erfa; almanac = the seeds' model)")
     o = p.add_argument_group("scene and output")
     o.add_argument("--mag-limit", type=finite_float, metavar="MAG", default=None, help="faintest Hp magnitude (default 8)")
     o.add_argument("--seed", type=_seed, metavar="N", help="noise seed (default: random, reported)")
@@ -144,7 +135,7 @@ def _site_and_weather(args, form: str):
         pressure_hpa=1013.25 if args.pressure_hpa is None else args.pressure_hpa,
         temperature_c=10.0 if args.temperature_c is None else args.temperature_c,
         relative_humidity=0.0 if args.relative_humidity is None else args.relative_humidity)
-    return site, weather, args.refraction or "almanac"
+    return site, weather, args.refraction or "erfa"
 
 
 def _simulate(args):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from shipstar.cli._common import emit_json, finite_float
+from shipstar.cli._common import emit_json, finite_float, positive_float
 from shipstar.errors import ShipstarError
 
 __all__ = ["register", "run"]
@@ -24,20 +24,6 @@ Writes OUT/A1/*.fits and OUT/A2/*.fits (DATE-OBS = mid-exposure UTC, each with a
 """
 
 
-def _one_line_errors(parser: argparse.ArgumentParser) -> None:
-    def error(message):
-        parser.exit(2, f"{parser.prog}: error: {message}\n")
-
-    parser.error = error
-
-
-def _positive(text: str) -> float:
-    value = finite_float(text)
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {value}")
-    return value
-
-
 def _seed(text: str) -> int:
     try:
         value = int(text)
@@ -54,11 +40,10 @@ def register(subparsers) -> argparse.ArgumentParser:
         description="Render a whole simulated session of the seeds' two-sensor ship, in dock or at sea, "
                     "as FITS frames with DATE-OBS plus truth, track and weather files.",
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    _one_line_errors(p)
     p.add_argument("--kind", required=True, choices=("dock", "sea"), help="dock calibration or at-sea session")
     p.add_argument("--out", required=True, metavar="DIR", help="new (or empty) directory to write")
-    p.add_argument("--duration-s", type=_positive, default=16.0, help="session length (s, default 16)")
-    p.add_argument("--fps", type=_positive, default=10.0, help="frames per second per sensor (default 10)")
+    p.add_argument("--duration-s", type=positive_float, default=16.0, help="session length (s, default 16)")
+    p.add_argument("--frame-rate-hz", type=positive_float, default=10.0, help="frames per second per sensor (default 10)")
     p.add_argument("--sensors", default="A1,A2", help="comma-separated subset of A1,A2 (default both)")
     p.add_argument("--offset-ms", type=finite_float, default=0.0,
                    help="A2's exposures this much later than A1's (ms, default 0)")
@@ -83,9 +68,9 @@ def _spec(args):
         raise ShipstarError(f"--sensors must be a comma-separated subset of {', '.join(known)}, got {args.sensors!r}")
     sensors = tuple(replace(known[w], time_offset_s=args.offset_ms / 1000.0) if w == "A2" else known[w]
                     for w in wanted)
-    if args.duration_s * args.fps > 100000:
-        raise ShipstarError(f"{args.duration_s * args.fps:.0f} frames per sensor is too many (at most 100000)")
-    return base.replace(sensors=sensors, duration_s=args.duration_s, frame_rate_hz=args.fps,
+    if args.duration_s * args.frame_rate_hz > 100000:
+        raise ShipstarError(f"{args.duration_s * args.frame_rate_hz:.0f} frames per sensor is too many (at most 100000)")
+    return base.replace(sensors=sensors, duration_s=args.duration_s, frame_rate_hz=args.frame_rate_hz,
                         mag_limit=args.mag_limit, seed=args.seed)
 
 

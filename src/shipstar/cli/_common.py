@@ -9,7 +9,7 @@ import sys
 
 from shipstar.errors import ShipstarError
 
-__all__ = ["finite_float", "latitude_deg", "emit_json", "atomic_write_text"]
+__all__ = ["finite_float", "latitude_deg", "fraction", "positive_float", "emit_json", "atomic_write_text"]
 
 
 def finite_float(text: str) -> float:
@@ -28,6 +28,22 @@ def latitude_deg(text: str) -> float:
     value = finite_float(text)
     if not -90.0 <= value <= 90.0:
         raise argparse.ArgumentTypeError(f"latitude must be within [-90, 90] deg, got {value}")
+    return value
+
+
+def fraction(text: str) -> float:
+    """argparse type: a number within [0, 1] (e.g. relative humidity)."""
+    value = finite_float(text)
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be within [0, 1], got {value}")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    value = finite_float(text)
+    if value <= 0.0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {value}")
     return value
 
 

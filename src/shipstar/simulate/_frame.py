@@ -290,7 +290,7 @@ def _attitudes(C_icrs_from_sensor, C_hor_from_sensor, ship, site):
 
 
 def simulate_frame(camera, *, C_icrs_from_sensor=None, C_hor_from_sensor=None, ship: ShipPose | None = None,
-                   utc_iso: str | None = None, site=None, weather=None, refraction_model: str = "almanac",
+                   utc_iso: str | None = None, site=None, weather=None, refraction_model: str = "erfa",
                    eop=None, mag_limit: float | None = DEFAULT_MAG_LIMIT, catalog=None, seed: int | None = None,
                    omega_sensor_rad_per_s=None, false_objects: FalseObjects | None = None,
                    hot_pixel_fraction: float = HOT_PIXEL_FRACTION) -> SimulatedFrame:

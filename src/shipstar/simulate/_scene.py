@@ -188,7 +188,7 @@ def simulate_stars(camera, C_icrs_from_sensor, *, epoch_jyear: float = 2000.0,
 
 
 def simulate_stars_horizontal(camera, C_hor_from_sensor, context, weather=None,
-                              refraction_model: str = "almanac", *,
+                              refraction_model: str = "erfa", *,
                               mag_limit: float | None = DEFAULT_MAG_LIMIT, catalog=None,
                               omega_sensor_rad_per_s=None, earth_rotation: bool = True) -> SimulatedStars:
     """Catalog stars seen by ``camera`` at an attitude in the horizontal frame (on Earth).

@@ -141,7 +141,7 @@ def _as_elevation(el_rad, what: str) -> np.ndarray:
     return el
 
 
-def min_observed_el_deg(model: str = "almanac") -> float:
+def min_observed_el_deg(model: str = "erfa") -> float:
     """Lowest observed elevation (deg) ``model`` accepts: 5 deg, 10 deg for ``"erfa"``."""
     if not isinstance(model, str) or model not in MODELS:
         raise ShipstarError(f"unknown refraction model {model!r}; choose one of {', '.join(MODELS)}")
@@ -185,7 +185,7 @@ def _min_true_el_rad_cached(weather: Weather, model: str) -> float:
     return float(lo - _rho_exact(np.array(lo), weather, model))
 
 
-def min_true_el_rad(weather: Weather, model: str = "almanac") -> float:
+def min_true_el_rad(weather: Weather, model: str = "erfa") -> float:
     """Lowest true (unrefracted) elevation, radians, that ``model`` lifts above its limit.
 
     Use it to select catalogue stars before :func:`refract_hor` (about 4.84 deg for
@@ -203,7 +203,7 @@ def _table(weather: Weather, model: str) -> RefractionTable:
 
 # -- elevation API -----------------------------------------------------------------------
 
-def refraction_rad(el_observed_rad, weather: Weather, model: str = "almanac") -> np.ndarray:
+def refraction_rad(el_observed_rad, weather: Weather, model: str = "erfa") -> np.ndarray:
     """Refraction ``rho >= 0`` (radians) at OBSERVED elevations.
 
     Parameters
@@ -230,13 +230,13 @@ def refraction_rad(el_observed_rad, weather: Weather, model: str = "almanac") ->
     return _rho_exact(el, weather, model)
 
 
-def true_el_from_observed(el_obs_rad, weather: Weather, model: str = "almanac") -> np.ndarray:
+def true_el_from_observed(el_obs_rad, weather: Weather, model: str = "erfa") -> np.ndarray:
     """True (unrefracted) elevation ``el_obs - rho(el_obs)``, radians, shape of the input."""
     el = _as_elevation(el_obs_rad, "observed elevation")
     return el - refraction_rad(el, weather, model)
 
 
-def observed_el_from_true(el_true_rad, weather: Weather, model: str = "almanac") -> np.ndarray:
+def observed_el_from_true(el_true_rad, weather: Weather, model: str = "erfa") -> np.ndarray:
     """Observed elevation solving ``el_obs = el_true + rho(el_obs)``, radians.
 
     Fixed-point iteration on the exact formulas; it contracts by ``|d rho/d el| < 0.04``
@@ -304,7 +304,7 @@ def _with_elevation(u, h, el_new):
     return out
 
 
-def refract_hor(v_hor, weather: Weather, model: str = "almanac") -> np.ndarray:
+def refract_hor(v_hor, weather: Weather, model: str = "erfa") -> np.ndarray:
     """True (unrefracted) horizontal directions -> observed directions; azimuth unchanged.
 
     Parameters
@@ -334,7 +334,7 @@ def refract_hor(v_hor, weather: Weather, model: str = "almanac") -> np.ndarray:
     return _with_elevation(u, h, el_obs)
 
 
-def unrefract_hor(v_obs_hor, weather: Weather, model: str = "almanac") -> np.ndarray:
+def unrefract_hor(v_obs_hor, weather: Weather, model: str = "erfa") -> np.ndarray:
     """Observed horizontal directions -> true (unrefracted) directions; azimuth unchanged.
 
     The inverse of :func:`refract_hor` (same table, error < 1e-4 arcsec).
