@@ -2,7 +2,9 @@
 
 References: the normal CDF (scipy.stats.norm) and numerical quadrature for the pixel
 integral, exact moments of a Gaussian convolved with a uniform segment for the smear,
-Poisson + Gaussian noise moments for the noise chain.
+Poisson + Gaussian noise moments for the noise chain, and chi-square tests of the
+sampled pixel values against the exact distributions (scipy.stats.poisson, norm) and
+against numpy's own Poisson and normal samplers.
 """
 
 from __future__ import annotations
@@ -114,6 +116,26 @@ def test_smear_puts_the_centroid_at_the_path_midpoint_and_spreads_it_along_the_p
         assert v == pytest.approx(sigma ** 2 + 1 / 12 + d ** 2 / 12 * (1 - 1 / n ** 2), rel=1e-6)
 
 
+def test_long_smears_are_rendered_in_chunks_exactly_like_point_by_point():
+    # 100 px at sigma 1: 400 path points, two chunks; reference: one window per point
+    sigma, xy, smear, flux = 1.0, np.array([[40.3, 31.7], [20.0, 50.2]]), np.array([[100.0, -12.0], [0.0, 3.1]]), \
+        np.array([2e4, 5e3])
+    shape = (80, 140)
+    image = render_image_e(shape, xy, flux, sigma, smear_px=smear)
+    reference = np.zeros(shape)
+    for (x, y), (dx, dy), f in zip(xy, smear, flux):
+        n = max(1, math.ceil(math.hypot(dx, dy) / (0.25 * sigma)))
+        for k in range(n):
+            t = (k + 0.5) / n - 0.5
+            cx, cy = x + t * dx, y + t * dy
+            fx = pixel_fractions(np.array([cx]), np.array([0]), shape[1], sigma)[0]
+            fy = pixel_fractions(np.array([cy]), np.array([0]), shape[0], sigma)[0]
+            reference += f / n * np.outer(fy, fx)
+    inside = reference > 1e-6 * reference.max()          # the renderer cuts each point's PSF at 5 sigma
+    np.testing.assert_allclose(image[inside], reference[inside], rtol=1e-9, atol=1e-9 * flux.max())
+    assert abs(image.sum() - reference.sum()) < 1e-5 * flux.sum()
+
+
 # ---------------------------------------------------------------- the noisy frame
 
 def test_frame_is_12_bit_and_bright_stars_clip_at_the_adc_top():
@@ -137,7 +159,8 @@ def test_adc_clips_at_zero_without_wrapping():
     cam = small_camera(bias_adu=0.0, read_noise_e=200.0, dark_e_per_s=0.0, sky_e_per_px_per_s=0.0)
     frame = render_frame(cam, np.zeros((0, 2)), [], np.random.default_rng(2), hot_pixel_fraction=0.0)
     assert frame.min() == 0 and frame.max() < 100      # no 65535 from negative values
-    assert np.mean(frame == 0) == pytest.approx(0.5, abs=0.03)
+    # adu = rint(R / gain) clipped at 0: P(0) = P(R < gain / 2) = Phi(12.5 / 200); 4.5 standard errors
+    assert np.mean(frame == 0) == pytest.approx(stats.norm.cdf(0.5 * 25.0 / 200.0), abs=0.02)
 
 
 def test_background_noise_has_the_poisson_read_and_adc_moments():
@@ -150,6 +173,88 @@ def test_background_noise_has_the_poisson_read_and_adc_moments():
     values = frame.astype(float)
     assert values.mean() == pytest.approx(mean_expected, abs=0.02)
     assert values.var() == pytest.approx(var_expected, rel=0.02)
+
+
+def _histogram_test(values, probabilities, first):
+    """Chi-square p-value of integer ``values`` against ``probabilities`` of ``first, first + 1, ...``.
+
+    Cells with fewer than 5 expected counts are pooled into the two tails.
+    """
+    n = values.size
+    counts = np.bincount(values - first, minlength=len(probabilities))[:len(probabilities)]
+    assert counts.sum() == n, "values outside the tabulated range"
+    expected = n * probabilities
+    big = np.flatnonzero(expected >= 5.0)
+    lo, hi = big[0], big[-1]
+    obs = np.concatenate([[counts[:lo + 1].sum()], counts[lo + 1:hi], [counts[hi:].sum()]])
+    exp = np.concatenate([[expected[:lo + 1].sum()], expected[lo + 1:hi], [expected[hi:].sum()]])
+    return stats.chisquare(obs, exp * obs.sum() / exp.sum()).pvalue
+
+
+def test_background_counts_are_poisson_chi_square():
+    # no read noise, gain 1, no bias: the ADU of an empty pixel is its photo-electron count
+    cam = camera_preset("A1").replace(read_noise_e=0.0, gain_e_per_adu=1.0, bias_adu=0.0)
+    frame = render_frame(cam, np.zeros((0, 2)), [], np.random.default_rng(11), hot_pixel_fraction=0.0)
+    lam = (cam.sky_e_per_px_per_s + cam.dark_e_per_s) * cam.exposure_s           # 24.7 e
+    values = frame.astype(np.int64).ravel()
+    k = np.arange(0, 200)
+    assert _histogram_test(values, stats.poisson.pmf(k, lam), 0) > 1e-3
+    # mean and variance within 4 standard errors of Poisson's (1M pixels)
+    n = values.size
+    assert abs(values.mean() - lam) < 4.0 * math.sqrt(lam / n)
+    assert abs(values.var() - lam) < 4.0 * lam * math.sqrt(2.0 / n)
+    # KS on the counts spread uniformly over [k, k + 1): CDF = P(X < k) + (x - k) P(X = k)
+    jittered = values[:50000] + np.random.default_rng(1).uniform(size=50000)
+    continuous_cdf = lambda x: stats.poisson.cdf(np.floor(x) - 1, lam) + (x - np.floor(x)) * stats.poisson.pmf(np.floor(x), lam)
+    assert stats.kstest(jittered, continuous_cdf).pvalue > 1e-3
+
+
+def _adu_distribution(cam, first, last):
+    """Exact ADU probabilities of an empty pixel: Poisson shot noise, Gaussian read noise, ADC rounding."""
+    lam = (cam.sky_e_per_px_per_s + cam.dark_e_per_s) * cam.exposure_s
+    e = np.arange(0, int(lam + 20 * math.sqrt(lam) + 50))
+    p_e = stats.poisson.pmf(e, lam)
+    adu = np.arange(first, last + 1)
+    upper = stats.norm.cdf((cam.gain_e_per_adu * (adu[:, None] + 0.5 - cam.bias_adu) - e[None, :]) / cam.read_noise_e)
+    lower = stats.norm.cdf((cam.gain_e_per_adu * (adu[:, None] - 0.5 - cam.bias_adu) - e[None, :]) / cam.read_noise_e)
+    return (upper - lower) @ p_e
+
+
+def test_background_adu_follow_poisson_plus_read_noise_chi_square():
+    cam = camera_preset("A1")                           # 24.7 e of sky and dark, 20 e read noise, 25 e/ADU
+    frame = render_frame(cam, np.zeros((0, 2)), [], np.random.default_rng(12), hot_pixel_fraction=0.0)
+    values = frame.astype(np.int64).ravel()
+    probabilities = _adu_distribution(cam, 90, 115)
+    assert probabilities.sum() == pytest.approx(1.0, abs=1e-12)
+    assert _histogram_test(values, probabilities, 90) > 1e-3
+    lam = (cam.sky_e_per_px_per_s + cam.dark_e_per_s) * cam.exposure_s
+    var = (lam + cam.read_noise_e ** 2) / cam.gain_e_per_adu ** 2 + 1 / 12
+    n = values.size
+    assert abs(values.mean() - (cam.bias_adu + lam / cam.gain_e_per_adu)) < 4.0 * math.sqrt(var / n)
+    assert abs(values.var() / var - 1.0) < 4.0 * math.sqrt(2.0 / n) + 0.003      # + ADC-rounding approximation
+    # and against numpy's own samplers drawing the same chain pixel by pixel (two-sample chi-square)
+    rng = np.random.default_rng(13)
+    brute = np.rint((rng.poisson(lam, n) + cam.read_noise_e * rng.standard_normal(n)) / cam.gain_e_per_adu
+                    + cam.bias_adu).astype(np.int64)
+    table = np.stack([np.bincount(v - 90, minlength=26)[:26] for v in (values, brute)])
+    table = table[:, table.min(axis=0) >= 5]
+    assert stats.chi2_contingency(table).pvalue > 1e-3
+
+
+def test_star_pixels_have_poisson_plus_read_noise_statistics():
+    # one star, many frames: every pixel's mean and variance against the expected electrons
+    cam = small_camera(width_px=32, height_px=32, x0_px=15.5, y0_px=15.5, gain_e_per_adu=1.0, read_noise_e=3.0,
+                       bias_adu=100.0, psf_sigma_px=1.2)
+    xy, signal = [[15.3, 16.2]], [4000.0]
+    rng = np.random.default_rng(14)
+    frames = np.stack([render_frame(cam, xy, signal, rng, hot_pixel_fraction=0.0) for _ in range(600)]).astype(float)
+    bg = (cam.sky_e_per_px_per_s + cam.dark_e_per_s) * cam.exposure_s
+    mean_e = render_image_e((32, 32), xy, signal, cam.psf_sigma_px, bg)
+    var = mean_e + cam.read_noise_e ** 2 + 1 / 12
+    z_mean = (frames.mean(axis=0) - cam.bias_adu - mean_e) / np.sqrt(var / len(frames))
+    z_var = (frames.var(axis=0, ddof=1) / var - 1.0) / math.sqrt(2.0 / (len(frames) - 1))
+    assert np.abs(z_mean).max() < 4.5 and abs(z_mean.mean()) < 4.0 / 32
+    assert np.abs(z_var).max() < 5.0 and abs(z_var.mean()) < 5.0 / 32
 
 
 def test_the_same_seed_gives_the_same_frame():

@@ -66,8 +66,16 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     """Entry point of the ``shipstar`` console command; returns the exit code."""
     argv = sys.argv[1:] if argv is None else list(argv)
+    debug = "--debug" in argv  # accepted anywhere on the line, not only before the command
+    argv = [a for a in argv if a != "--debug"]
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    args.debug = debug
+    if extra:
+        where = f"shipstar {args.command}" if getattr(args, "command", None) else "shipstar"
+        print(f"{where}: error: unrecognized arguments: {' '.join(extra)} (see '{where} --help')",
+              file=sys.stderr)
+        return EXIT_BAD_INPUT
     if not getattr(args, "run", None):
         parser.print_help()
         return EXIT_BAD_INPUT

@@ -25,7 +25,7 @@ import numpy as np
 
 __all__ = [
     "Windows", "gather_windows", "fit_gaussian", "window_half_px", "estimate_psf_sigma",
-    "start_values", "covariance", "estimate_inv_gain", "neighbour_ratios",
+    "start_values", "covariance", "estimate_inv_gain", "inv_gain_from_residuals", "neighbour_ratios",
 ]
 
 _SQRT2 = math.sqrt(2.0)
@@ -238,17 +238,26 @@ def estimate_inv_gain(win, p):
     """
     n, size = len(p), win.size
     model, jac_t = _jacobian(p, win, True)
-    w = win.valid.reshape(n, size * size) / win.noise[:, None] ** 2
+    return inv_gain_from_residuals(win.values.reshape(n, size * size), win.valid.reshape(n, size * size),
+                                   win.noise, model, jac_t, p[:, 3])
+
+
+def inv_gain_from_residuals(values, valid, noise, model, jac_t, bg) -> float:
+    """Inverse gain from uniformly weighted fits: ``values``/``valid``/``model`` (N, P), ``jac_t`` (N, k, P).
+
+    See :func:`estimate_inv_gain`; shared with the smeared-star fits.
+    """
+    n = len(values)
+    w = valid / noise[:, None] ** 2
     a = (jac_t * w[:, None, :]) @ jac_t.transpose(0, 2, 1)
     leverage = w * np.sum(jac_t * (_spd_inverse(a) @ jac_t), axis=1)
-    resid2 = (win.values.reshape(n, size * size) - model) ** 2 / np.clip(1.0 - leverage, 0.05, 1.0)
-    excess = np.maximum(model - p[:, 3][:, None], 0.0)
-    extra = resid2 - win.noise[:, None] ** 2
-    use = win.valid.reshape(n, size * size)
+    resid2 = (values - model) ** 2 / np.clip(1.0 - leverage, 0.05, 1.0)
+    excess = np.maximum(model - bg[:, None], 0.0)
+    extra = resid2 - noise[:, None] ** 2
     inv_gain = np.zeros(n)
     for _ in range(3):
-        var = win.noise[:, None] ** 2 + excess * inv_gain[:, None]
-        weight = use / var ** 2
+        var = noise[:, None] ** 2 + excess * inv_gain[:, None]
+        weight = valid / var ** 2
         den = np.sum(weight * excess ** 2, axis=1)
         num = np.sum(weight * excess * extra, axis=1)
         inv_gain = np.maximum(0.0, np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0))

@@ -18,7 +18,9 @@ FLAG_SATURATED = 1
 FLAG_EDGE = 2
 #: The Gaussian refinement did not converge; the centroid is the centre of gravity.
 FLAG_FIT_FAILED = 4
-#: The star's pixels are elongated (axis ratio > 2): smear, a satellite trail, a blend.
+#: The star's pixels are elongated (axis ratio > 2): smear, a satellite trail, a blend. In a
+#: smeared frame: longer or wider than one streak of the common smear (a trail), or sharing
+#: its pixels with another detection (a blend).
 FLAG_ELONGATED = 8
 
 #: Bit -> name, as the CLI's JSON writes them.
@@ -55,9 +57,13 @@ class Extraction:
     snr : (N,) float array
         Signal-to-noise ratio of ``flux_adu``.
     xy_sigma_px : (N,) float array
-        Predicted 1-sigma centroid error per axis: the Cramer-Rao bound at the measured
-        star, which the Gaussian fit reaches (the centre of gravity does not); NaN for
-        saturated stars and failed fits. Scaled for correlated (JPEG) noise.
+        Predicted 1-sigma centroid error per axis, ``sqrt((var_x + var_y) / 2)`` of
+        ``xy_cov_px2``.
+    xy_cov_px2 : (N, 2, 2) float array
+        Predicted covariance of the centroid (x, y): the Cramer-Rao bound at the measured
+        star, which the fit reaches (the centre of gravity does not); NaN for saturated
+        point stars (centre of gravity) and failed fits. Scaled for correlated (JPEG)
+        noise. A streak's is elongated: its error along the smear is larger.
     background_adu : float
         Median background level over the frame.
     noise_adu : float
@@ -66,6 +72,9 @@ class Extraction:
         PSF sigma used by the Gaussian refinement (given or fitted; NaN if none).
     shape_hw : tuple of int
         Image height and width.
+    smear_px : (2,) float array
+        Common smear (dx, dy) the stars were measured with (given or estimated; the sign
+        is arbitrary); (0, 0) when the frame was treated as unsmeared.
     """
 
     xy_px: np.ndarray
@@ -75,10 +84,12 @@ class Extraction:
     flags: np.ndarray
     snr: np.ndarray
     xy_sigma_px: np.ndarray
+    xy_cov_px2: np.ndarray
     background_adu: float
     noise_adu: float
     psf_sigma_px: float
     shape_hw: tuple
+    smear_px: np.ndarray
 
     def __len__(self) -> int:
         return int(len(self.xy_px))
