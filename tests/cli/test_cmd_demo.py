@@ -140,9 +140,9 @@ def test_bad_input(tmp_path, args, fragments):
 
 
 def test_unknown_option(tmp_path):
-    # argparse reports unknown options from the top-level parser (shipstar/cli/__init__.py)
+    # unknown options are reported by the sub-command, in one line (shipstar/cli/__init__.py)
     _assert_bad_input(_run(["--quick", "--bogus"], tmp_path), "unrecognized arguments: --bogus",
-                      prefix="shipstar: error:")
+                      prefix="shipstar demo: error:")
 
 
 def test_bad_config_file_is_one_line(tmp_path):
