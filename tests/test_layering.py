@@ -9,7 +9,7 @@ import shipstar
 
 #: The stages, bottom first.  A module of stage i may import stages 0..i only.
 ORDER = [
-    "units", "errors", "frames",
+    "units", "errors", "_atomic", "frames",
     "sky", "camera", "simulate", "extract",
     "attitude", "identify",
     "calibrate", "ship", "errormodel", "pipeline",

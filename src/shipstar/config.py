@@ -762,22 +762,9 @@ _EXAMPLE_CAMERAS = ("A1", "A2")
 
 
 def _atomic_write_text(path: Path, text: str) -> None:
-    import os
-    import tempfile
+    from shipstar._atomic import atomic_write_text
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)          # mkstemp makes 0600; a user's file follows the umask
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    atomic_write_text(path, text)
 
 
 def write_example_config(directory, *, overwrite: bool = False) -> list:

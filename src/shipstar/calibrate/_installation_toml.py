@@ -70,21 +70,9 @@ def save_installation(inst, path) -> None:
     Written to a temporary file in the same directory and renamed, so a crash never
     leaves a half-written file that looks complete.
     """
-    import os
-    import tempfile
+    from shipstar._atomic import atomic_write_text
 
-    path = Path(path)
-    text = _render(inst)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    atomic_write_text(path, _render(inst))
 
 
 def _read_toml(path: Path) -> dict:

@@ -11,7 +11,6 @@ import functools
 import json
 import math
 import os
-import tempfile
 import tomllib
 from dataclasses import fields
 from pathlib import Path
@@ -100,20 +99,9 @@ def save_camera(camera: Camera, path) -> None:
     if not isinstance(camera, Camera):
         raise ShipstarError(f"save_camera needs a Camera, got {type(camera).__name__}")
     text = camera_to_toml_text(camera)
-    path = Path(path)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    except OSError as exc:
-        raise ShipstarError(f"cannot write camera file {str(path)!r}: {_one_line(exc.strerror or exc)}") from None
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    from shipstar._atomic import atomic_write_text
+
+    atomic_write_text(path, text, what="camera file")
 
 
 @functools.lru_cache(maxsize=None)

@@ -7,6 +7,7 @@ import json
 import math
 import sys
 
+from shipstar._atomic import atomic_write_text  # noqa: F401  (re-exported for commands)
 from shipstar.errors import ShipstarError
 
 __all__ = ["finite_float", "latitude_deg", "fraction", "positive_float", "emit_json", "atomic_write_text"]
@@ -55,22 +56,3 @@ def emit_json(obj, stream=None) -> None:
     except ValueError as exc:
         raise ShipstarError(f"result is not finite, refusing to print it as JSON: {exc}") from None
     stream.write(text + "\n")
-
-
-def atomic_write_text(path, text: str) -> None:
-    """Write a text file so that a crash never leaves a half-written file that looks complete."""
-    import os
-    import tempfile
-    from pathlib import Path
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise

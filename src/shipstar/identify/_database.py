@@ -19,8 +19,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import tempfile
 import time
 import zipfile
 from dataclasses import dataclass, field
@@ -360,21 +358,17 @@ def _read(path, params: DatabaseParams, catalog_digest: str) -> StarDatabase | N
 
 
 def _write(path, db: StarDatabase) -> None:
-    tmp = None
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-        with os.fdopen(fd, "wb") as fh:
+    from shipstar._atomic import atomic_path
+
+    try:  # the cache only saves time: an unwritable directory is not an error
+        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
             np.savez(fh, params_json=np.array(db.params.as_json()),
                      catalog_digest=np.array(db.catalog_digest), grid_n=np.array(db.grid_n),
                      query_radius_rad=np.array(db.query_radius_rad),
                      build_time_s=np.array(db.build_time_s),
                      **{name: getattr(db, name) for name in _ARRAYS})
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except OSError:
-        if tmp is not None and os.path.exists(tmp):
-            os.unlink(tmp)
+    except (OSError, ShipstarError):
+        pass
 
 
 def cached_database(params: DatabaseParams, use_cache: bool = True) -> StarDatabase:

@@ -57,19 +57,6 @@ def attitude_csv_text(result) -> str:
 def write_attitude_csv(result, path) -> None:
     """Write the attitude CSV atomically (temporary file + rename): a crash never leaves a
     partial file under the final name."""
-    import os
-    import tempfile
-    from pathlib import Path
+    from shipstar._atomic import atomic_write_text
 
-    path = Path(path)
-    text = attitude_csv_text(result)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    atomic_write_text(path, attitude_csv_text(result), newline="")

@@ -15,17 +15,10 @@ _NAMES = ("heading", "pitch", "roll")
 
 def _save(fig, path: Path) -> None:
     """Save to a temporary file beside ``path`` and rename (never a partial PNG)."""
-    import os
-    import tempfile
+    from shipstar._atomic import atomic_path
 
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".png")
-    os.close(fd)
-    try:
+    with atomic_path(path, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=100, format="png")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _figure(n_rows: int):

@@ -158,25 +158,6 @@ class Report:
 
     def write(self, path) -> Path:
         """Write the page atomically (temporary file + rename); returns the path."""
-        import os
-        import tempfile
+        from shipstar._atomic import atomic_write_text
 
-        path = Path(path)
-        text = self.to_html()
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-        except OSError as exc:
-            raise ShipstarError(f"cannot write the report {path}: {exc.strerror or exc}") from None
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8") as fh:
-                fh.write(text)
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(tmp, 0o666 & ~umask)      # mkstemp makes 0600; the report follows the umask
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
-        return path
+        return atomic_write_text(path, self.to_html(), what="the report")

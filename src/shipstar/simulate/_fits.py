@@ -13,8 +13,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -201,19 +199,10 @@ def fits_header_cards(frame) -> list:
 
 def _atomic_replace(path: Path, write) -> None:
     """``write(tmp_path)`` into a temporary file beside ``path``, then rename it over ``path``."""
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    except OSError as exc:
-        raise ShipstarError(f"cannot write {path}: {exc.strerror or exc}") from None
-    os.close(fd)
-    try:
-        write(Path(tmp))
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    from shipstar._atomic import atomic_path
+
+    with atomic_path(path) as tmp:
+        write(tmp)
 
 
 def write_frame(frame, path) -> tuple[Path, Path]:

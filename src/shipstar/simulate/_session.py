@@ -404,18 +404,9 @@ def _toml_text(spec: SessionSpec) -> str:
 
 
 def _write_text(path, text: str) -> None:
-    import os
-    import tempfile
+    from shipstar._atomic import atomic_write_text
 
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    atomic_write_text(path, text)
 
 
 def _sensor_frame(spec: SessionSpec, s: SensorSetup, k: int, t: float):

@@ -15,7 +15,6 @@ from __future__ import annotations
 import hashlib
 import os
 import pathlib
-import tempfile
 import warnings
 import zipfile
 from dataclasses import dataclass
@@ -359,18 +358,13 @@ def _write_npz(path: pathlib.Path, key: str, catalog: StarCatalog) -> bool:
     Returns False, leaving nothing behind, if the directory cannot be written: the cache
     only saves time, the caller still has the catalog.
     """
-    tmp = None
+    from shipstar._atomic import atomic_path
+
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-        with os.fdopen(fd, "wb") as fh:
+        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
             np.savez(fh, key=np.array(key), **{name: getattr(catalog, name) for name in _FIELDS})
-        os.chmod(tmp, 0o644)                     # mkstemp makes it 0600
-        os.replace(tmp, path)
         return True
-    except OSError:
-        if tmp is not None:
-            pathlib.Path(tmp).unlink(missing_ok=True)
+    except (OSError, ShipstarError):
         return False
 
 
