@@ -411,7 +411,8 @@ def smeared_statistics(result, xy, signal, smear):
     use[use] &= (result.flags[found[use]] & FLAG_SATURATED) == 0
     err = result.xy_px[found[use]] - xy[use]
     out = dict(complete=np.mean(found[snr >= 10] >= 0), n10=int(np.sum(snr >= 10)),
-               false=int(len(result) - np.sum(found >= 0)), n=int(use.sum()))
+               false=int(len(result) - np.sum(found >= 0)), n=int(use.sum()),
+               n_faint=int(np.sum(use & (snr < 30.0))))
     bright = signal[use] == signal.max()
     for name, axis in (("along", along[use]), ("across", across[use])):
         e = np.sum(err * axis, axis=1)
@@ -419,6 +420,8 @@ def smeared_statistics(result, xy, signal, smear):
         out[f"bias_{name}"] = float(np.mean(e[bright]))
         out[f"se_{name}"] = float(np.std(e[bright]) / math.sqrt(bright.sum()))
         out[f"ratio_{name}"] = float(np.sqrt(np.mean((e / bound) ** 2)))
+        faint = snr[use] < 30.0
+        out[f"faint_ratio_{name}"] = float(np.sqrt(np.mean((e[faint] / bound[faint]) ** 2)))
         predicted = np.sqrt(np.einsum("ni,nij,nj->n", axis, result.xy_cov_px2[found[use]], axis))
         out[f"predicted_{name}"] = float(np.nanmedian(predicted / bound))
     return out
@@ -441,6 +444,7 @@ def test_smeared_stars_are_complete_unbiased_and_near_the_cramer_rao_bound(rate_
     for name in ("along", "across"):
         assert abs(st[f"bias_{name}"]) < 0.02 and abs(st[f"bias_{name}"]) < 4 * st[f"se_{name}"] + 0.005
         assert st[f"ratio_{name}"] <= 1.3
+        assert st[f"faint_ratio_{name}"] <= 1.5          # SNR 10-30 alone: the long tail of faint streaks
         assert st[f"predicted_{name}"] == pytest.approx(1.0, abs=0.15)     # xy_cov_px2 follows the bound
     if rate_deg_s >= 1.0:
         # the common smear: given, or estimated (its sign is arbitrary)
@@ -513,4 +517,4 @@ def test_smeared_frame_flags_saturated_edge_and_trails():
     trail = others[(result.flags[others] & FLAG_ELONGATED) != 0]
     assert len(trail) == 1 and len(others) <= 2 and np.all(result.snr[np.setdiff1d(others, trail)] < 6.0)
     x, y = result.xy_px[trail[0]]
-    assert 100 <= x <= 400 and abs(y - (900.0 - 140.0 * (x - 100.0) / 300.0)) < 3.0
+    assert 100 <= x <= 400 and abs(y - (900.0 - 140.0 * (x - 100.0) / 300.0)) < 8.0      # on the trail

@@ -241,6 +241,22 @@ def test_background_adu_follow_poisson_plus_read_noise_chi_square():
     assert stats.chi2_contingency(table).pvalue > 1e-3
 
 
+def test_a_background_too_bright_for_the_table_goes_through_the_chain_pixel_by_pixel():
+    # 1e6 e of sky: the exact ADU table would hold ~1e8 terms, so every pixel takes the chain
+    from shipstar.simulate._render import _background_table
+
+    cam = small_camera(width_px=256, height_px=256, x0_px=127.5, y0_px=127.5, sky_e_per_px_per_s=1.25e7,
+                       dark_e_per_s=0.0, full_well_e=1e8, gain_e_per_adu=25.0, adc_bits=16)
+    assert _background_table(1e6, cam.read_noise_e, cam.gain_e_per_adu, cam.bias_adu, cam.full_well_e, 65535) is None
+    frame = render_frame(cam, [[100.0, 100.0]], [1e6], np.random.default_rng(15), hot_pixel_fraction=0.0)
+    lam = cam.sky_e_per_px_per_s * cam.exposure_s
+    values = np.delete(frame.ravel(), np.arange(90, 111)[:, None] * 256 + np.arange(90, 111)).astype(float)
+    var = (lam + cam.read_noise_e ** 2) / cam.gain_e_per_adu ** 2 + 1 / 12
+    assert abs(values.mean() - (cam.bias_adu + lam / cam.gain_e_per_adu)) < 4.0 * math.sqrt(var / values.size)
+    assert abs(values.var() / var - 1.0) < 4.0 * math.sqrt(2.0 / values.size)
+    assert frame[100, 100] > cam.bias_adu + lam / cam.gain_e_per_adu + 100      # the star is there
+
+
 def test_star_pixels_have_poisson_plus_read_noise_statistics():
     # one star, many frames: every pixel's mean and variance against the expected electrons
     cam = small_camera(width_px=32, height_px=32, x0_px=15.5, y0_px=15.5, gain_e_per_adu=1.0, read_noise_e=3.0,

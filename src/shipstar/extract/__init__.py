@@ -13,13 +13,20 @@
    centroids: a pixel-integrated Gaussian fitted by vectorised Gauss-Newton on a fixed
    window (``refine="gaussian"``, the default) or the thresholded centre of gravity.
 
+Frames smeared by the sensor's motion (a ship rolling at a few deg/s smears A1's stars
+over up to ~40 px) take another path when ``smear_px=(dx, dy)`` is given or a smear of
+3 px or more is found in the frame: a line-shaped matched filter finds the streaks, a
+smear field (field rotation) is fitted to the bright ones, and each star is fitted with
+the pixel-integrated Gaussian moved along its smear; the centroid is the position at
+mid-exposure.
+
 ``read_image(path)`` reads FITS, PNG, TIFF, JPEG and ``.npy`` files. See
 ``docs/extraction.md`` for the method, the flags and the measured accuracy and speed.
 """
 
 from __future__ import annotations
 
-from shipstar.extract._core import extract_stars
+from shipstar.extract._core import STREAK_MIN_PX, extract_stars
 from shipstar.extract._io import read_image
 from shipstar.extract._result import (
     FLAG_EDGE,
@@ -33,5 +40,5 @@ from shipstar.extract._result import (
 
 __all__ = [
     "Extraction", "extract_stars", "read_image", "flag_names", "FLAG_NAMES",
-    "FLAG_SATURATED", "FLAG_EDGE", "FLAG_FIT_FAILED", "FLAG_ELONGATED",
+    "FLAG_SATURATED", "FLAG_EDGE", "FLAG_FIT_FAILED", "FLAG_ELONGATED", "STREAK_MIN_PX",
 ]

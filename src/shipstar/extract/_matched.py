@@ -1,0 +1,198 @@
+"""Detection of smeared stars: a line-shaped matched filter and oriented non-maximum suppression.
+
+A star smeared by (dx, dy) spreads its light over ~L = hypot(dx, dy) pixels, so its peak
+signal-to-noise ratio per pixel drops as 1/L; the sum of the pixels along the streak
+keeps it. The filter image is
+
+    S(p) = sum_k sum_a I(p + o_k + a e),
+
+with ``o_k`` integer offsets every pixel along the dominant axis of the smear, symmetric
+about 0 and spanning it (``2 round(|d|/2) + 1`` taps, the other coordinate rounded onto
+the line), and ``a`` = -w .. w steps ``e`` along the other axis (the PSF's width). For a
+streak at p, S is maximal at its midpoint and holds ~90 % of its light, against the
+noise of ``(2 w + 1) x taps`` pixels: close to the matched filter. Each add is one
+pass over the frame (float32), so the cost grows with L.
+
+Peaks of S are 3x3 local maxima above ``threshold_sigma`` times S's noise; a peak
+within the streak footprint (along <= L + 1.5 px, across <= 2.5 px + sigma) of a
+stronger one is the same star (noise bumps on the ridge) and dropped. A connected
+region of S above 2.5 sigma that is longer or wider than one streak (a satellite trail,
+the edge of a roof) gives one object, its strongest peak.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from shipstar.extract._background import Mesh, estimate_mesh
+from shipstar.extract._detect import candidate_pixels, components, local_maxima
+
+__all__ = ["LineFilter", "line_filter", "detect_streaks", "EXTENT_FACTOR"]
+
+#: Block size of the filter image's background and noise mesh, px.
+_S_BLOCK_PX = 64
+
+#: A component of S's candidates whose RMS extent along or across the smear exceeds this
+#: multiple of a single streak's largest is a trail or an edge, not a star.
+EXTENT_FACTOR = 1.5
+
+
+class LineFilter:
+    """Taps of the line filter for a smear ``smear_px`` (2,) and an across half-width ``across_px``."""
+
+    def __init__(self, smear_px, across_px: int = 1):
+        d = np.asarray(smear_px, dtype=float)
+        self.smear_px = d
+        self.length_px = float(math.hypot(d[0], d[1]))
+        self.major = 0 if abs(d[0]) >= abs(d[1]) else 1          # 0: mostly along x
+        span = abs(d[self.major])
+        half = int(round(span / 2.0))
+        k = np.arange(-half, half + 1)
+        minor = np.rint(k * (d[1 - self.major] / d[self.major])) if span > 0 else np.zeros_like(k)
+        offsets = np.zeros((len(k), 2), dtype=np.int64)          # (x, y)
+        offsets[:, self.major] = k
+        offsets[:, 1 - self.major] = minor.astype(np.int64)
+        self.offsets = offsets
+        self.across_px = int(across_px)
+
+    @property
+    def taps(self) -> int:
+        """Number of pixels summed."""
+        return len(self.offsets) * (2 * self.across_px + 1)
+
+    @property
+    def reach_px(self) -> int:
+        return int(np.abs(self.offsets).max()) + self.across_px
+
+
+def line_filter(image, fill_value: float, lf: LineFilter) -> np.ndarray:
+    """S (H, W) float32: the sum of the ``lf.taps`` pixels of the line filter around each pixel.
+
+    Off-image pixels count as ``fill_value`` (the background).
+    """
+    height, width = image.shape
+    pad = lf.reach_px
+    padded = np.pad(image.astype(np.float32, copy=False), pad, mode="constant",
+                    constant_values=np.float32(fill_value))
+    step = np.zeros(2, dtype=np.int64)
+    step[1 - lf.major] = 1                                       # across: the minor axis
+    ph, pw = padded.shape
+    a = lf.across_px
+    # across sums on the padded frame (rows/columns a .. end - a valid)
+    across = padded.copy()
+    for j in range(1, a + 1):
+        sx, sy = step * j
+        across[sy:ph - sy, sx:pw - sx] += padded[2 * sy:, 2 * sx:][:ph - 2 * sy, :pw - 2 * sx]
+        across[sy:ph - sy, sx:pw - sx] += padded[:ph - 2 * sy, :pw - 2 * sx]
+    out = np.zeros((height, width), dtype=np.float32)
+    for ox, oy in lf.offsets:
+        out += across[pad + oy:pad + oy + height, pad + ox:pad + ox + width]
+    return out
+
+
+def _filter_mesh(s_image, mesh) -> Mesh:
+    """Background and noise of the filter image itself, on blocks of ``_S_BLOCK_PX``.
+
+    S's background must be known to a small fraction of S's noise, ``sqrt(taps)``
+    times smaller than ``taps`` times the pixel noise: the frame's own mesh (the median of
+    integer pixel values, quantised to 1/2 ADU) is too coarse for that, the median of S
+    (sums of many pixels) is not. A block's noise estimate never goes below the median
+    over the blocks (it comes from 64 correlated samples).
+    """
+    block = int(min(_S_BLOCK_PX, max(8, min(s_image.shape) // 4)))
+    mesh_s = estimate_mesh(s_image, block_px=block)
+    noise = np.maximum(mesh_s.noise, np.median(mesh_s.noise))
+    return replace(mesh_s, noise=noise, box_noise_factor=1.0)
+
+
+def _suppress(xy, strength, lf: LineFilter, across_px: float) -> np.ndarray:
+    """Indices (strongest first) of peaks not within the streak footprint of a stronger peak."""
+    from scipy.spatial import cKDTree
+
+    order = np.argsort(-strength, kind="stable")
+    if len(order) < 2:
+        return order
+    along_px = lf.length_px + 1.5
+    u = lf.smear_px / max(lf.length_px, 1e-12)
+    pairs = cKDTree(xy).query_pairs(math.hypot(along_px, across_px), output_type="ndarray")
+    if len(pairs) == 0:
+        return order
+    d = xy[pairs[:, 1]] - xy[pairs[:, 0]]
+    along = np.abs(d @ u)
+    across = np.abs(d[:, 0] * u[1] - d[:, 1] * u[0])
+    pairs = pairs[(along <= along_px) & (across <= across_px)]
+    rank = np.empty(len(order), dtype=np.int64)
+    rank[order] = np.arange(len(order))
+    strong = np.where(rank[pairs[:, 0]] < rank[pairs[:, 1]], pairs[:, 0], pairs[:, 1])
+    weak = np.where(rank[pairs[:, 0]] < rank[pairs[:, 1]], pairs[:, 1], pairs[:, 0])
+    # greedy, strongest first: a peak is dropped only by a stronger peak that was kept
+    by_strong = np.argsort(rank[strong], kind="stable")
+    strong, weak = strong[by_strong], weak[by_strong]
+    dropped = np.zeros(len(order), dtype=bool)
+    starts = np.searchsorted(rank[strong], np.arange(len(order)))
+    ends = np.searchsorted(rank[strong], np.arange(len(order)), side="right")
+    for r in range(len(order)):
+        i = order[r]
+        if dropped[i] or starts[r] == ends[r]:
+            continue
+        dropped[weak[starts[r]:ends[r]]] = True
+    return order[~dropped[order]]
+
+
+def detect_streaks(image, mesh: Mesh, lf: LineFilter, threshold_sigma: float, segment_sigma: float,
+                   psf_sigma_px: float):
+    """Smeared stars in ``image`` (hot pixels and cosmic rays already replaced by the background).
+
+    Returns
+    -------
+    dict with ``col``, ``row`` (M,) int peak pixels of S (the streaks' midpoints to
+    ~1 px), ``snr`` (M,) S excess over its noise, ``label`` (M,) component of S's
+    candidate pixels each peak is in, ``npix`` (M,) pixels in that component, and
+    ``too_big`` (M,) bool: the component is longer or wider than one streak (a trail,
+    an edge; only its strongest peak is kept).
+    """
+    s_image = line_filter(image, mesh.background_adu, lf)
+    mesh_s = _filter_mesh(s_image, mesh)
+    mask, idx = candidate_pixels(s_image, mesh_s, segment_sigma)
+    flat = s_image.reshape(-1)
+    peaks = local_maxima(flat, idx, s_image.shape)
+    row, col = np.divmod(peaks, s_image.shape[1])
+    bg, noise = mesh_s.at(col, row)
+    snr = (flat[peaks] - bg) / noise
+    keep = snr >= threshold_sigma
+    peaks, row, col, snr = peaks[keep], row[keep], col[keep], snr[keep]
+    xy = np.stack([col, row], axis=1).astype(float)
+    kept = _suppress(xy, snr, lf, 2.5 + psf_sigma_px)
+    peaks, row, col, snr = peaks[kept], row[kept], col[kept], snr[kept]
+    labels, n_labels = components(mask, idx, s_image.shape)
+    label = labels[np.searchsorted(idx, peaks)] if len(peaks) else np.zeros(0, dtype=np.int64)
+    npix = np.bincount(labels, minlength=n_labels)
+    extent = _component_extent(idx, labels, n_labels, s_image.shape[1], lf)[label]
+    # a component longer or wider than one streak is a trail or an edge: its strongest peak only
+    single = np.array([lf.length_px + 4.0 * psf_sigma_px + 2.0, 2.0 * psf_sigma_px + 2.0]) / math.sqrt(3.0)
+    too_big = np.any(extent > EXTENT_FACTOR * single, axis=1)
+    _, first = np.unique(label, return_index=True)                 # peaks are strongest first
+    keep = ~too_big
+    keep[first] = True
+    return dict(col=col[keep], row=row[keep], snr=snr[keep], label=label[keep], npix=npix[label][keep],
+                too_big=too_big[keep])
+
+
+def _component_extent(idx, labels, n_labels, width, lf: LineFilter) -> np.ndarray:
+    """(n_labels, 2) RMS extent of each component's pixels along and across the smear, px."""
+    if n_labels == 0:
+        return np.zeros((0, 2))
+    row, col = np.divmod(idx, width)
+    u = lf.smear_px / max(lf.length_px, 1e-12)
+    a = col * u[0] + row * u[1]
+    c = col * u[1] - row * u[0]
+    n = np.bincount(labels, minlength=n_labels)
+    out = []
+    for q in (a, c):
+        mean = np.bincount(labels, weights=q, minlength=n_labels) / n
+        var = np.bincount(labels, weights=(q - mean[labels]) ** 2, minlength=n_labels) / n
+        out.append(np.sqrt(var))
+    return np.stack(out, axis=1)
