@@ -13,12 +13,16 @@ example:
   shipstar extract frame_0001.fits --json
   shipstar extract sky.jpg --max-stars 20 --threshold-sigma 6
   shipstar extract frame.fits --camera A1          # PSF sigma, gain, saturation from the camera
+  shipstar extract sea.fits --camera A1 --smear-px 18.5 -6.0   # streaks: the smear vector, if known
 
 Prints one line per star, brightest first (x right, y down, centre of the top-left
 pixel = (0, 0)); with --json exactly one JSON object:
   {"stars": [{"x_px", "y_px", "flux_adu", "peak_adu", "snr", "npix", "xy_sigma_px",
               "flags": ["saturated", "edge", "fit_failed", "elongated"]}, ...],
-   "background_adu", "noise_adu", "psf_sigma_px", "image": {"path", "width_px", "height_px"}}
+   "background_adu", "noise_adu", "psf_sigma_px", "smear_px": [dx, dy],
+   "image": {"path", "width_px", "height_px"}}
+Stars smeared by the ship's motion (streaks) are found and centred at mid-exposure; the
+smear is estimated from the frame unless --smear-px gives it.
 Exit status: 0 stars found, 1 no star found (the frame is readable but empty),
 2 bad input (unreadable file, bad option).
 """
@@ -58,6 +62,8 @@ def register(subparsers) -> argparse.ArgumentParser:
                         help="gain (default: the camera's, else estimated from the stars)")
     parser.add_argument("--saturation-adu", type=finite_float, default=None, metavar="A",
                         help="saturation level (default: the camera's, else the top of the ADC range)")
+    parser.add_argument("--smear-px", type=finite_float, nargs=2, default=None, metavar=("DX", "DY"),
+                        help="motion smear of the stars during the exposure (px; default: estimated)")
     parser.set_defaults(run=run)
     return parser
 
@@ -93,6 +99,7 @@ def _as_json(result, path) -> dict:
     height, width = result.shape_hw
     return {"stars": stars, "background_adu": result.background_adu, "noise_adu": result.noise_adu,
             "psf_sigma_px": _number(result.psf_sigma_px),
+            "smear_px": [float(v) for v in result.smear_px],
             "image": {"path": str(path), "width_px": int(width), "height_px": int(height)}}
 
 
@@ -114,7 +121,8 @@ def run(args) -> int:
     psf, gain, sat = _camera_options(args)
     image = read_image(args.frame)
     result = extract_stars(image, threshold_sigma=args.threshold_sigma, max_stars=args.max_stars,
-                           refine=args.refine, psf_sigma_px=psf, gain_e_per_adu=gain, saturation_adu=sat)
+                           refine=args.refine, psf_sigma_px=psf, gain_e_per_adu=gain, saturation_adu=sat,
+                           smear_px=args.smear_px)
     if args.json:
         emit_json(_as_json(result, args.frame))
     else:
