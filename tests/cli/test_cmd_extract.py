@@ -106,3 +106,29 @@ def test_bad_input_exits_2_with_one_line(tmp_path):
     proc = _run(["saturated.npy", "--max-stars", "0"], tmp_path)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     _assert_bad_input(_run(["saturated.npy", "--threshold-sigma", "0.5"], tmp_path), "threshold_sigma")
+
+
+def test_smeared_frame_with_a_smear_hint(tmp_path):
+    """Streaks (the ship turning during the exposure) are centred at mid-exposure."""
+    from astropy.io import fits
+
+    smear = np.tile([16.0, -5.0], (len(TRUTH), 1))
+    image = render_frame(A1, TRUTH, star_signal_e(A1, MAGS), np.random.default_rng(5),
+                         smear_px=smear, hot_pixel_fraction=0.0)
+    path = tmp_path / "streaks.fits"
+    fits.PrimaryHDU(image).writeto(path)
+    proc = _run([str(path), "--json", "--camera", "A1", "--smear-px", "16", "-5"], tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout)
+    assert np.allclose(np.abs(out["smear_px"]), [16.0, 5.0], atol=0.5)
+    assert len(out["stars"]) == len(TRUTH)
+    xy = np.array([[s["x_px"], s["y_px"]] for s in out["stars"]])
+    sigma = np.array([s["xy_sigma_px"] for s in out["stars"]])
+    nearest = np.linalg.norm(xy[:, None, :] - TRUTH[None, :, :], axis=2)
+    d = nearest.min(axis=1)
+    assert len(set(nearest.argmin(axis=1))) == len(TRUTH)      # one extracted star per true star
+    assert np.all(d < 5.0 * sigma) and np.all(sigma < 0.2), (d, sigma)
+
+
+def test_bad_smear_hint_is_one_line(tmp_path, frame_fits):
+    _assert_bad_input(_run([str(frame_fits), "--smear-px", "1", "nan"], tmp_path), "--smear-px")
