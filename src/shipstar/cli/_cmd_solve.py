@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
-from shipstar.cli._common import emit_json, finite_float
+from shipstar.cli._common import emit_json, finite_float, positive_float
 
 EPILOG = """\
 examples:
@@ -23,21 +22,6 @@ direction, from celestial north through east (docs/conventions.md).
 
 exit status: 0 solved, 1 not solved (the reason is printed), 2 bad input.
 """
-
-
-def _one_line_error(parser: argparse.ArgumentParser):
-    def error(message: str):
-        print(f"{parser.prog}: error: {message}", file=sys.stderr)
-        raise SystemExit(2)
-
-    return error
-
-
-def _positive(text: str) -> float:
-    value = finite_float(text)
-    if value <= 0.0:
-        raise argparse.ArgumentTypeError(f"must be positive, got {value}")
-    return value
 
 
 def _fov(text: str) -> float:
@@ -71,18 +55,17 @@ def register(subparsers) -> argparse.ArgumentParser:
                     "them against the Hipparcos catalog (lost-in-space) and fit the sensor "
                     "attitude in ICRS.",
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.error = _one_line_error(p)
     p.add_argument("image", help="image file")
     cam = p.add_mutually_exclusive_group(required=True)
-    cam.add_argument("--camera", metavar="FILE", help="camera preset (A1, A2, seed002, seed004) or TOML file")
+    cam.add_argument("--camera", metavar="NAME|FILE", help="camera preset (A1, A2, seed002, seed004) or TOML file")
     cam.add_argument("--fov-deg", type=_fov, help="horizontal field of view of a pinhole camera (deg)")
     p.add_argument("--fov-tolerance", type=_tolerance, default=None,
                    help="relative FOV uncertainty (default 0.1 with --fov-deg, 0 with --camera)")
     p.add_argument("--mag-limit", type=finite_float, default=None,
                    help="database magnitude limit (Hp; default adapted to the field)")
-    p.add_argument("--centroid-error-px", type=_positive, default=None,
+    p.add_argument("--centroid-error-px", type=positive_float, default=None,
                    help="bound on a centroid's error per axis (px, default 1)")
-    p.add_argument("--threshold-sigma", type=_positive, default=5.0,
+    p.add_argument("--threshold-sigma", type=positive_float, default=5.0,
                    help="extraction detection threshold (default 5)")
     p.add_argument("--max-stars", type=_count, default=60,
                    help="brightest extracted stars used (default 60)")
