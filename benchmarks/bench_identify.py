@@ -17,12 +17,18 @@ In one run, for each camera (A1: 8.6 deg / 1024 px; seed004: 12 deg / 512 px):
   by more than 3 px) and the number of frames whose attitude is right but one of the
   matched stars is named wrongly, median and 99th-percentile wall time,
   database size and build time, and the time ratios to cedar-solve and tetra3rs;
-* times tracking (prior = truth rotated by 0.1 deg) for shipstar and tetra3rs.
+* times tracking for shipstar and tetra3rs (with the same prior as an attitude hint),
+  interleaved frame by frame: on the same random frames with the prior = truth rotated
+  by 0.1 deg (prior error 0.2 deg), and on a 10 frames/s stream of a swaying ship (a
+  1 deg/s turn plus a 5 deg, 8 s sway; prior = the last two solutions extrapolated, as
+  ``shipstar measure`` does; prior error 0.5 deg), where the stars in view barely change
+  between frames.
 
 Usage::
 
     python benchmarks/bench_identify.py                 # 2000 frames per camera
     python benchmarks/bench_identify.py --frames 200    # quick look
+    python benchmarks/bench_identify.py --tracking-only --frames 1000
 
 Anchor databases are cached under ``shipstar.sky.catalog.cache_dir()/bench/identify``
 (cedar-solve's takes minutes to build the first time).
@@ -173,11 +179,11 @@ def run_cedar(frame, t3, camera):
     return True, b, dict(zip(rows, [int(h) for h in res["matched_catID"]]))
 
 
-def run_tetra3rs(frame, sdb, camera, hint=None):
+def run_tetra3rs(frame, sdb, camera, hint=None, hint_deg=0.2):
     xy = frame.xy_px - np.array([camera.x0_px, camera.y0_px])
     kw = {}
     if hint is not None:
-        kw = {"attitude_hint": hint, "hint_uncertainty_deg": 0.2, "strict_hint": True}
+        kw = {"attitude_hint": hint, "hint_uncertainty_deg": hint_deg, "strict_hint": True}
     res = sdb.solve_from_centroids(xy, fov_estimate_deg=camera.fov_deg,
                                    image_width=camera.width_px, image_height=camera.height_px,
                                    fov_max_error_deg=0.01 * camera.fov_deg,
@@ -227,7 +233,13 @@ class Tally:
                 f"median {np.median(t):7.3f} ms   p99 {np.percentile(t, 99):8.3f} ms")
 
 
-def bench_camera(name, n_frames, seed):
+def _simulate(db, camera, attitudes, rng):
+    return [simulate_frame(db, camera, C, rng, sigma_px=rng.uniform(0.1, 0.3), mag_sigma=0.2,
+                           n_drop=int(rng.integers(0, 4)), n_false=int(rng.integers(0, 4)))
+            for C in attitudes]
+
+
+def bench_camera(name, n_frames, seed, tracking_only=False):
     camera = camera_preset(name)
     t0 = time.perf_counter()
     db = build_database(camera, use_cache=False)
@@ -235,24 +247,30 @@ def bench_camera(name, n_frames, seed):
     db = build_database(camera)
     print(f"\n=== camera {name}: {camera.width_px}x{camera.height_px} px, FOV {camera.fov_deg:.3f} deg,"
           f" Hp <= {db.params.mag_limit:g}, {db.n_stars} stars")
-    t3, cedar_info = cedar_database(db)
     sdb, rs_info = tetra3rs_database(db)
-    print(f"database  shipstar  {db.size_bytes / 1e6:6.2f} MB, {db.n_patterns} patterns, built in "
-          f"{fresh_build_s:6.2f} s")
-    print(f"database  cedar     {cedar_info['size_bytes'] / 1e6:6.2f} MB (npz), built in "
-          f"{cedar_info['build_time_s']:6.1f} s")
-    print(f"database  tetra3rs  {rs_info['size_bytes'] / 1e6:6.2f} MB, {sdb.num_patterns} patterns, "
-          f"built in {rs_info['build_time_s']:6.2f} s")
-
     rng = np.random.default_rng(seed)
-    attitudes = random_attitudes(n_frames, rng)
-    frames = [simulate_frame(db, camera, attitudes[k], rng, sigma_px=rng.uniform(0.1, 0.3),
-                             mag_sigma=0.2, n_drop=int(rng.integers(0, 4)),
-                             n_false=int(rng.integers(0, 4))) for k in range(n_frames)]
+    frames = _simulate(db, camera, random_attitudes(n_frames, rng), rng)
     counts = np.array([np.count_nonzero(f.truth_row >= 0) for f in frames])
     print(f"frames: {n_frames}; true stars per frame: median {np.median(counts):.0f}, "
           f"1st percentile {np.percentile(counts, 1):.0f}, min {counts.min()}; "
           f"frames with < 5 true stars: {np.count_nonzero(counts < 5)}")
+    tallies = None
+    if not tracking_only:
+        t3, cedar_info = cedar_database(db)
+        print(f"database  shipstar  {db.size_bytes / 1e6:6.2f} MB, {db.n_patterns} patterns, built in "
+              f"{fresh_build_s:6.2f} s")
+        print(f"database  cedar     {cedar_info['size_bytes'] / 1e6:6.2f} MB (npz), built in "
+              f"{cedar_info['build_time_s']:6.1f} s")
+        print(f"database  tetra3rs  {rs_info['size_bytes'] / 1e6:6.2f} MB, {sdb.num_patterns} patterns, "
+              f"built in {rs_info['build_time_s']:6.2f} s")
+        tallies = bench_lost_in_space(frames, db, camera, t3, sdb)
+    bench_tracking(frames, db, camera, sdb, rng)
+    bench_tracking_stream(db, camera, sdb, n_frames, rng)
+    return tallies
+
+
+def bench_lost_in_space(frames, db, camera, t3, sdb):
+    n_frames = len(frames)
     pixel_rad = camera.pixel_mm / camera.f_mm
     solvers = [("shipstar", lambda f: run_shipstar(f, db, camera)),
                ("cedar-solve", lambda f: run_cedar(f, t3, camera)),
@@ -274,7 +292,6 @@ def bench_camera(name, n_frames, seed):
           f"{med['shipstar'] / med['cedar-solve']:.3f}, shipstar / tetra3rs = "
           f"{med['shipstar'] / med['tetra3rs']:.2f}   (p99 ratios {p99['shipstar'] / p99['cedar-solve']:.3f},"
           f" {p99['shipstar'] / p99['tetra3rs']:.2f})")
-    bench_tracking(frames, db, camera, sdb, rng)
     return tallies
 
 
@@ -292,29 +309,81 @@ def _perturb(C, angle_rad, rng):
     return C @ matrix_from_q_wxyz(q)
 
 
-def bench_tracking(frames, db, camera, sdb, rng):
-    n = len(frames)
-    priors = [_perturb(f.C_icrs_from_sensor, math.radians(0.1), rng) for f in frames]
+def _time_tracking(frames, priors, db, camera, sdb, prior_error_deg):
+    """Both trackers on every frame, interleaved; ``(times_ship, ok_ship, times_rs, ok_rs)``.
+    A prior may be a callable ``(k, solution of frame k-1 or None) -> C`` (a stream)."""
     t_ship, ok_ship, t_rs, ok_rs = [], 0, [], 0
-    identify_tracking(frames[0].xy_px, db, priors[0], camera=camera, fallback=False)
-    for f, P in zip(frames, priors):
+    last = None
+    for k, f in enumerate(frames):
+        P = priors(k, last) if callable(priors) else priors[k]
         t = time.perf_counter()
-        r = identify_tracking(f.xy_px, db, P, camera=camera, prior_error_deg=0.2, fallback=False)
+        r = identify_tracking(f.xy_px, db, P, camera=camera, prior_error_deg=prior_error_deg,
+                              fallback=False)
         t_ship.append(time.perf_counter() - t)
         m = r.star_index >= 0
-        ok_ship += bool(r.solved and np.all(r.star_index[m] == f.truth_row[m]))
+        ok = bool(r.solved and np.all(r.star_index[m] == f.truth_row[m]))
+        ok_ship += ok
+        last = r.C_icrs_from_sensor if r.solved else None
         hint = _CAM_FROM_SENSOR @ P.T                       # ICRS -> tetra3rs camera frame
         t = time.perf_counter()
-        solved, bore, ids = run_tetra3rs(f, sdb, camera, hint=hint)
+        solved, bore, ids = run_tetra3rs(f, sdb, camera, hint=hint, hint_deg=prior_error_deg)
         t_rs.append(time.perf_counter() - t)
         truth_hip = np.where(f.truth_row >= 0, db.hip[np.maximum(f.truth_row, 0)], -1)
         ok_rs += bool(solved and all(truth_hip[r_] == h for r_, h in ids.items()))
-    ts, tr = np.asarray(t_ship) * 1e3, np.asarray(t_rs) * 1e3
-    print(f"tracking  shipstar  correct {100 * ok_ship / n:7.3f} %   median {np.median(ts):6.3f} ms  "
+    return np.asarray(t_ship) * 1e3, ok_ship, np.asarray(t_rs) * 1e3, ok_rs
+
+
+def _print_tracking(label, ts, ok_ship, tr, ok_rs, n):
+    print(f"{label}  shipstar  correct {100 * ok_ship / n:7.3f} %   median {np.median(ts):6.3f} ms  "
           f"p99 {np.percentile(ts, 99):6.3f} ms")
-    print(f"tracking  tetra3rs  correct {100 * ok_rs / n:7.3f} %   median {np.median(tr):6.3f} ms  "
+    print(f"{label}  tetra3rs  correct {100 * ok_rs / n:7.3f} %   median {np.median(tr):6.3f} ms  "
           f"p99 {np.percentile(tr, 99):6.3f} ms   (hint, strict, no fallback)")
-    print(f"tracking median time ratio shipstar / tetra3rs = {np.median(ts) / np.median(tr):.2f}")
+    print(f"{label} median time ratio shipstar / tetra3rs = {np.median(ts) / np.median(tr):.2f}"
+          f"   (p99 ratio {np.percentile(ts, 99) / np.percentile(tr, 99):.2f})")
+
+
+def bench_tracking(frames, db, camera, sdb, rng):
+    """Random attitudes over the sky, prior = truth rotated by 0.1 deg (prior error 0.2)."""
+    priors = [_perturb(f.C_icrs_from_sensor, math.radians(0.1), rng) for f in frames]
+    identify_tracking(frames[0].xy_px, db, priors[0], camera=camera, fallback=False)
+    _print_tracking("tracking", *_time_tracking(frames, priors, db, camera, sdb, 0.2), len(frames))
+
+
+def stream_attitudes(n, rng, *, frame_rate_hz=10.0, drift_deg_s=1.0, sway_deg=5.0, sway_period_s=8.0):
+    """``n`` attitudes of a sensor on a ship: a steady turn about a random axis plus a
+    sinusoidal sway (roll/pitch) about another, sampled at ``frame_rate_hz``."""
+    from shipstar.frames import matrix_from_q_wxyz
+
+    def rot(axis, angle):
+        return matrix_from_q_wxyz(np.concatenate([[math.cos(angle / 2)], math.sin(angle / 2) * axis]))
+
+    C0 = random_attitudes(1, rng)[0]
+    a1, a2 = (v / np.linalg.norm(v) for v in rng.normal(size=(2, 3)))
+    t = np.arange(n) / frame_rate_hz
+    return [C0 @ rot(a1, math.radians(drift_deg_s * tk))
+            @ rot(a2, math.radians(sway_deg) * math.sin(2 * math.pi * tk / sway_period_s)) for tk in t]
+
+
+def bench_tracking_stream(db, camera, sdb, n_frames, rng, prior_error_deg=0.5):
+    """A 10 frames/s stream on a swaying ship (up to ~0.5 deg between frames): the prior
+    is the last two solutions extrapolated (as ``shipstar measure`` does), the catalog
+    stars in view barely change between frames."""
+    from shipstar.pipeline._sensor import extrapolate_rotation
+
+    attitudes = stream_attitudes(n_frames, rng)
+    frames = _simulate(db, camera, attitudes, rng)
+    history = []            # solutions so far (the truth after a failed frame: a restart)
+
+    def prior(k, last):
+        if k == 0:
+            return _perturb(attitudes[0], math.radians(0.1), rng)
+        history.append(last if last is not None else attitudes[k - 1])
+        if len(history) < 2:
+            return history[-1]
+        return extrapolate_rotation(history[-2], history[-1], 1.0)
+
+    out = _time_tracking(frames, prior, db, camera, sdb, prior_error_deg)
+    _print_tracking("stream  ", *out, len(frames))
 
 
 def main(argv=None) -> int:
@@ -322,11 +391,13 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=2000, help="frames per camera (default 2000)")
     ap.add_argument("--cameras", default="A1,seed004", help="comma-separated camera presets")
     ap.add_argument("--seed", type=int, default=20250)
+    ap.add_argument("--tracking-only", action="store_true",
+                    help="only the tracking comparisons (no lost-in-space, no cedar-solve)")
     args = ap.parse_args(argv)
     print(f"python {sys.version.split()[0]}, numpy {np.__version__}; load average "
           f"{os.getloadavg()[0]:.2f} on {os.cpu_count()} cores (times are wall times)")
     for name in args.cameras.split(","):
-        bench_camera(name.strip(), args.frames, args.seed)
+        bench_camera(name.strip(), args.frames, args.seed, args.tracking_only)
     return 0
 
 

@@ -89,6 +89,48 @@ def test_pipeline_inputs_from_a_dock_session(project_dir):
     assert dc.heading_rad == pytest.approx(SEED_DOCK_HEADING_DEG * DEG2RAD, abs=1e-8)
 
 
+def test_site_deflection_of_the_vertical_reaches_the_pipeline(project_dir):
+    """Review finding: site.toml's xi/eta were read, then dropped by track() and
+    dock_conditions().  Now every frame's Site carries them, the dock record keeps them,
+    and the simulator (which has no deflection) refuses such a site instead of silently
+    simulating without it."""
+    from shipstar.units import ASEC2RAD
+
+    _edit(project_dir / "site.toml", "xi_arcsec = 0.0 ", "xi_arcsec = 8.5 ")
+    _edit(project_dir / "site.toml", "eta_arcsec = 0.0 ", "eta_arcsec = -12.25 ")
+    cfg = load_project(project_dir).dock
+    site = cfg.track().site(2456367.0, 0.01)
+    assert site.xi_rad == pytest.approx(8.5 * ASEC2RAD, rel=1e-12)
+    assert site.eta_rad == pytest.approx(-12.25 * ASEC2RAD, rel=1e-12)
+    assert site.astronomical_lat_rad == pytest.approx((31.9 + 8.5 / 3600) * DEG2RAD, rel=1e-12)
+    dc = cfg.dock_conditions()
+    assert (dc.xi_rad, dc.eta_rad) == (pytest.approx(8.5 * ASEC2RAD), pytest.approx(-12.25 * ASEC2RAD))
+    with pytest.raises(ShipstarError, match="no deflection of the vertical.*xi_arcsec = 8.5"):
+        cfg.spec()
+
+
+def test_track_csv_deflection_columns_and_longitude_range(tmp_path):
+    from shipstar.pipeline import Track
+    from shipstar.sky.time import utc_jd_from_iso
+    from shipstar.units import ASEC2RAD
+
+    p = tmp_path / "track.csv"
+    p.write_text("time_utc,lat_deg,lon_deg,xi_arcsec,eta_arcsec\n2013-03-15T12:29:00,31.9,350.0,4,-6\n"
+                 "2013-03-15T12:31:00,31.9,350.2,8,-2\n")
+    site = Track.read_csv(p).site(*utc_jd_from_iso("2013-03-15T12:30:00"))
+    assert (site.xi_rad / ASEC2RAD, site.eta_rad / ASEC2RAD) == (pytest.approx(6.0), pytest.approx(-4.0))
+    assert site.lon_rad / DEG2RAD == pytest.approx(-9.9, abs=1e-9)          # 350.1 deg, normalised
+    p.write_text("time_utc,lat_deg,lon_deg\n2013-03-15T12:29:00,31.9,1e308\n")
+    with pytest.raises(ShipstarError, match=r"data row 1: longitude 1e\+308 deg is outside \[-180, 360\]"):
+        Track.read_csv(p)
+    p.write_text("time_utc,lat_deg,lon_deg,xi_arcsec\n2013-03-15T12:29:00,31.9,120,500\n")
+    with pytest.raises(ShipstarError, match="deflection of the vertical xi"):
+        Track.read_csv(p)
+    with pytest.raises(ShipstarError, match="longitude"):
+        Track.fixed(31.9, -181.0)
+    assert Track.fixed(31.9, 360.0).site(0.0, 0.0).lon_rad == 0.0
+
+
 def test_track_and_weather_csv_and_frames(project_dir, tmp_path):
     (project_dir / "track.csv").write_text("time_utc,lat_deg,lon_deg\n2013-03-15T12:29:00,31.9,120.3\n"
                                            "2013-03-15T12:32:00,31.91,120.31\n")

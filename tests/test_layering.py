@@ -10,7 +10,7 @@ import shipstar
 #: The stages, bottom first.  A module of stage i may import stages 0..i only.
 ORDER = [
     "units", "errors", "_atomic", "frames",
-    "sky", "camera", "simulate", "extract",
+    "sky", "_fitsio", "camera", "simulate", "extract",
     "attitude", "identify",
     "calibrate", "ship", "errormodel", "pipeline",
     "report", "config", "_demo",

@@ -136,22 +136,33 @@ def test_weather_table(tmp_path):
 
 # -- frames on disk ------------------------------------------------------------------------
 
-def _write_fits(path, date_obs=None, data=None):
+def _write_fits(path, date_obs=None, data=None, exptime_s=0.08):
     from astropy.io import fits
 
     hdu = fits.PrimaryHDU(np.zeros((16, 16), np.uint16) if data is None else data)
     if date_obs is not None:
         hdu.header["DATE-OBS"] = date_obs
+    if exptime_s is not None:
+        hdu.header["EXPTIME"] = exptime_s
     hdu.writeto(path)
 
 
 def test_scan_frames_reads_times_and_checks_order(tmp_path):
+    from shipstar.sky.time import utc_jd_from_iso
+
     _write_fits(tmp_path / "f0.fits", "2013-03-15T12:16:00.000")
     _write_fits(tmp_path / "f1.fits", "2013-03-15T12:16:00.100")
     (tmp_path / "notes.txt").write_text("x")
     frames = scan_frames(tmp_path)
     assert [f.label for f in frames] == ["f0.fits", "f1.fits"]
     assert frames[1].seconds_since(frames[0].utc_jd1, frames[0].utc_jd2) == pytest.approx(0.1, abs=1e-6)
+    # DATE-OBS is the start of the exposure (FITS standard): the time tag is 40 ms later
+    assert frames[0].seconds_since(*utc_jd_from_iso("2013-03-15T12:16:00")) == pytest.approx(0.04, abs=1e-9)
+    assert frames[0].time_source == "DATE-OBS+EXPTIME/2" and frames[0].exposure_s == 0.08
+    assert frames[0].utc_iso == "2013-03-15T12:16:00.040000Z"
+    mid = scan_frames(tmp_path, date_obs_is="mid")
+    assert mid[0].seconds_since(*utc_jd_from_iso("2013-03-15T12:16:00")) == pytest.approx(0.0, abs=1e-9)
+    assert mid[0].time_source == "DATE-OBS(mid)"
     _write_fits(tmp_path / "f2.fits", "2013-03-15T12:16:00.050")
     with pytest.raises(ShipstarError, match="out of time order: f2.fits"):
         scan_frames(tmp_path)
@@ -169,6 +180,11 @@ def test_scan_frames_bad_input(tmp_path):
     _write_fits(tmp_path / "a.fits", "yesterday")
     with pytest.raises(ShipstarError, match="DATE-OBS"):
         scan_frames(tmp_path)
+    (tmp_path / "a.fits").unlink()
+    _write_fits(tmp_path / "a.fits", "2013-03-15T12:16:00", exptime_s=None)    # start, but how long?
+    with pytest.raises(ShipstarError, match="a.fits: DATE-OBS is the start of the exposure .* no EXPTIME"):
+        scan_frames(tmp_path)
+    assert scan_frames(tmp_path, date_obs_is="mid")[0].time_source == "DATE-OBS(mid)"
     (tmp_path / "a.fits").write_bytes(b"SIMPLE  = garbage")
     with pytest.raises(ShipstarError, match="a.fits"):
         scan_frames(tmp_path)
@@ -353,6 +369,7 @@ def test_attitude_csv(sea_result):
     assert [r["method"] for r in rows[:4]] == ["single", "single", "seed-rule", "joint"]
     t = [float(r["t_s"]) for r in rows]
     assert t == sorted(t)
+    assert all(r["time_source"] == "" for r in rows)
     r = rows[3]
     from shipstar.sky.time import utc_jd_from_iso
 
@@ -378,20 +395,24 @@ def test_summary_is_json_ready(sea_result):
     assert math.isfinite(s["sensors"]["A1"]["median_residual_rms_arcsec"])
 
 
-def test_quick_header_scan_agrees_with_astropy(tmp_path):
-    """scan_frames reads DATE-OBS from the fixed-format header cards; astropy is the reference."""
-    from astropy.io import fits
+def test_attitude_csv_times_are_microseconds_and_name_their_source():
+    """A frame 30.4 ms after the start keeps its 0.4 ms (14'' of deck motion at sea) in
+    ``time_utc`` and ``t_s``; ``time_source`` says how each time was read."""
+    from shipstar.sky.time import utc_jd_from_iso
 
-    from shipstar.pipeline._frames import _quick_primary_header
-
-    hdu = fits.PrimaryHDU(np.zeros((8, 8), np.uint16))
-    hdu.header["DATE-OBS"] = ("2013-03-15T12:16:00.130", "UTC, mid-exposure")
-    hdu.header["SENSOR"] = "O'Brien A1"
-    hdu.header["TIMESYS"] = "UTC"
-    hdu.writeto(tmp_path / "q.fits", checksum=True)
-    quick = _quick_primary_header(tmp_path / "q.fits")
-    ref = fits.getheader(tmp_path / "q.fits")
-    for key in ("DATE-OBS", "SENSOR", "TIMESYS"):
-        assert quick[key] == ref[key]
-    fits.HDUList([fits.PrimaryHDU(), fits.ImageHDU(np.zeros((8, 8)))]).writeto(tmp_path / "ext.fits")
-    assert _quick_primary_header(tmp_path / "ext.fits") is None        # astropy handles extensions
+    spec, cf = _sea(offset_s=0.0304, duration_s=0.3)
+    track, weather, _ = _tables(spec)
+    frames = [[replace(f, time_source="DATE-AVG" if s.name == "A1" else "DATE-OBS+EXPTIME/2") for f in fl]
+              for s, fl in zip(spec.sensors, _frames(cf, spec))]
+    res = process_session(_true_configs(spec), frames, track, weather)
+    rows = list(csv.DictReader(io.StringIO(attitude_csv_text(res, frames))))
+    a2 = [r for r in rows if r["method"] == "single" and r["sensor"] == "A2"]
+    assert [r["time_utc"] for r in a2] == ["2013-03-15T12:16:00.030400Z", "2013-03-15T12:16:00.130400Z",
+                                           "2013-03-15T12:16:00.230400Z"]
+    assert [r["t_s"] for r in a2] == ["0.030400", "0.130400", "0.230400"]
+    for r in rows:
+        jd = utc_jd_from_iso(r["time_utc"])
+        assert ((jd[0] - spec.utc_jd(0.0)[0]) + (jd[1] - spec.utc_jd(0.0)[1])) * DAY_S == pytest.approx(
+            float(r["t_s"]), abs=1e-6)
+        expected = "DATE-OBS+EXPTIME/2" if r["sensor"] == "A2" else "DATE-AVG"      # fused rows: A1's frame
+        assert r["time_source"] == expected

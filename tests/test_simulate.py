@@ -336,9 +336,12 @@ def test_fits_file_header_and_data(tmp_path, orion_frame):
         assert len(hdul) == 1
         hdr, data = hdul[0].header, hdul[0].data
         assert data.dtype == np.uint16 and np.array_equal(data, orion_frame.image)
-        assert hdr["DATE-OBS"] == "2024-05-01T00:00:00.000"
-        assert hdr["DATE-BEG"] == "2024-04-30T23:59:59.960" and hdr["DATE-END"] == "2024-05-01T00:00:00.040"
-        assert hdr["EXPTIME"] == pytest.approx(0.08)
+        # FITS 4.0: DATE-OBS is the start of the exposure; DATE-AVG the (truth) mid-exposure
+        assert hdr["DATE-AVG"] == "2024-05-01T00:00:00.000000" and hdr["TIMESYS"] == "UTC"
+        assert hdr["DATE-OBS"] == hdr["DATE-BEG"] == "2024-04-30T23:59:59.960000"
+        assert hdr["DATE-END"] == "2024-05-01T00:00:00.040000"
+        assert hdr["MJD-AVG"] - hdr["MJD-OBS"] == pytest.approx(0.04 / 86400, abs=1e-11)
+        assert hdr["EXPTIME"] == pytest.approx(0.08) and hdr["ROWORDER"] == "TOP-DOWN"
         assert hdr["INSTRUME"] == "A1" and hdr["SENSOR"] == "A1"
         assert hdr["SIMSEED"] == 11 and hdr["NSTARS"] == len(orion_frame.stars)
         q = [hdr[k] for k in ("QICRS_W", "QICRS_X", "QICRS_Y", "QICRS_Z")]
@@ -366,7 +369,7 @@ def test_truth_json_schema_space(tmp_path, orion_frame):
     assert truth["schema"] == TRUTH_SCHEMA and truth["frame"] == "icrs"
     assert truth["fits_file"] == "orion.fits" and truth["camera_name"] == "A1"
     assert truth["image_sha256"] == image_sha256(orion_frame.image)
-    assert truth["utc_mid_exposure"] == "2024-05-01T00:00:00.000Z"
+    assert truth["utc_mid_exposure"] == "2024-05-01T00:00:00.000000Z"
     assert truth["exposure_s"] == 0.08 and truth["seed"] == 11 and truth["mag_limit"] == 8.0
     assert truth["ra_deg"] == pytest.approx(83.8) and truth["dec_deg"] == pytest.approx(-5.4)
     assert truth["roll_deg"] == pytest.approx(0.3 / DEG2RAD)

@@ -35,7 +35,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from shipstar.errors import ShipstarError
-from shipstar.units import DEG2RAD
+from shipstar.units import ASEC2RAD, DEG2RAD
 
 __all__ = [
     "SiteConfig", "SensorEntry", "ShipConfig", "WeatherConfig", "MotionConfig", "SimulationConfig",
@@ -404,13 +404,14 @@ class SessionConfig:
         return PipelineOptions(refraction_model=self.refraction_model, refraction=self.refraction, **changes)
 
     def track(self):
-        """:class:`shipstar.pipeline.Track`: the CSV table, or the fixed site."""
+        """:class:`shipstar.pipeline.Track`: the CSV table (its own ``xi_arcsec``,
+        ``eta_arcsec`` columns), or the fixed site with its deflection of the vertical."""
         from shipstar.pipeline import Track
 
         if self.track_csv is not None:
             return Track.read_csv(self.track_csv)
         s = self.site
-        return Track.fixed(s.lat_deg, s.lon_deg, s.height_m)
+        return Track.fixed(s.lat_deg, s.lon_deg, s.height_m, s.xi_arcsec, s.eta_arcsec)
 
     def weather_table(self):
         """:class:`shipstar.pipeline.WeatherTable`: the CSV table, or the constants."""
@@ -442,13 +443,18 @@ class SessionConfig:
         K, p, r = self.dock_attitude_deg
         s, w = self.site, self.weather
         return DockConditions(K * DEG2RAD, p * DEG2RAD, r * DEG2RAD, s.lat_deg * DEG2RAD, s.lon_deg * DEG2RAD,
-                              s.height_m, w.pressure_hpa, w.temperature_c, self.refraction_model, self.refraction)
+                              s.height_m, w.pressure_hpa, w.temperature_c, self.refraction_model, self.refraction,
+                              xi_rad=s.xi_arcsec * ASEC2RAD, eta_rad=s.eta_arcsec * ASEC2RAD)
 
     def spec(self):
         """The simulated session (:class:`shipstar.simulate._session.SessionSpec`)."""
         from shipstar.simulate._session import SensorSetup, SessionSpec, ShipMotion
 
         sim, w = self.simulation, self.weather
+        if self.site.xi_arcsec or self.site.eta_arcsec:
+            raise ShipstarError(f"{self.path}: the simulator has no deflection of the vertical (site xi_arcsec = "
+                                f"{self.site.xi_arcsec:g}, eta_arcsec = {self.site.eta_arcsec:g}); set both to 0 to "
+                                "simulate this session")
         m = sim.motion if self.kind == "sea" else None
         if self.kind == "sea" and m is None:
             raise ShipstarError(f"{self.path}: a simulated sea session needs [simulation.ship_motion]")
@@ -724,7 +730,7 @@ pressure_rate_hpa_per_s = 0.005       # simulation: linear drift
 temperature_rate_c_per_s = -0.01
 
 # [track]                             # real sessions: the ship's position over time
-# csv = "track.csv"                   # time_utc, lat_deg, lon_deg[, height_m]
+# csv = "track.csv"                   # time_utc, lat_deg, lon_deg[, height_m][, xi_arcsec, eta_arcsec]
 # [frames]
 # A1 = "frames/sea/A1"
 # A2 = "frames/sea/A2"

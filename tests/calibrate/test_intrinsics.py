@@ -254,7 +254,7 @@ def test_interstar_rms_is_zero_for_exact_data_and_linear_in_a_scale_error(sky, t
 @pytest.fixture(scope="module")
 def calibrations(frames, truth):
     start = _start(truth)
-    return {m: calibrate_intrinsics(frames, start, method=m, check_terms=(m == "joint"))
+    return {m: calibrate_intrinsics(frames, start, method=m, terms="all", check_terms=(m == "joint"))
             for m in ("sine", "cosine", "joint")}
 
 
@@ -292,7 +292,7 @@ def test_correlations_are_a_valid_correlation_matrix(calibrations):
 
 @pytest.mark.parametrize("method", ["sine", "joint"])
 def test_converges_from_the_other_side(frames, truth, method):
-    cal = calibrate_intrinsics(frames, _start(truth, -1.0), method=method, check_terms=False)
+    cal = calibrate_intrinsics(frames, _start(truth, -1.0), method=method, terms="all", check_terms=False)
     assert cal.solved, cal.reason
     assert max(abs(v) for v in _z_scores(cal, truth).values()) < 3.0
 
@@ -300,7 +300,7 @@ def test_converges_from_the_other_side(frames, truth, method):
 def test_joint_on_interstar_angles(frames, truth):
     """``attitudes=False``: the joint fit on the interstar angles (no attitudes)."""
     cal = calibrate_intrinsics(frames, _start(truth), method="joint", attitudes=False,
-                               check_terms=False)
+                               terms="all", check_terms=False)
     assert cal.solved, cal.reason
     assert max(abs(v) for v in _z_scores(cal, truth).values()) < 3.0
     assert cal.centroid_sigma_px == pytest.approx(NOISE_PX, rel=0.1)
@@ -315,8 +315,9 @@ def test_robust_joint_ignores_a_misidentified_star(frames, truth):
         v = fr.v_ref.copy()
         v[0] = frames[k + 10].v_ref[0]
         bad[k] = CalibrationFrame(fr.xy_px, v, None, fr.label)
-    robust = calibrate_intrinsics(bad, _start(truth), method="joint", check_terms=False)
-    plain = calibrate_intrinsics(bad, _start(truth), method="joint", robust=False, check_terms=False)
+    robust = calibrate_intrinsics(bad, _start(truth), method="joint", terms="all", check_terms=False)
+    plain = calibrate_intrinsics(bad, _start(truth), method="joint", robust=False, terms="all",
+                                 check_terms=False)
     assert robust.solved and max(abs(v) for v in _z_scores(robust, truth).values()) < 3.0
     assert not plain.solved or max(abs(v) for v in _z_scores(plain, truth).values()) > 10.0
 
@@ -324,7 +325,7 @@ def test_robust_joint_ignores_a_misidentified_star(frames, truth):
 def test_converges_from_the_image_centre(frames, truth):
     """A nominal principal point at the image centre is 210 px from the truth."""
     start = truth.replace(x0_px=1279.5, y0_px=959.5, distortion=Distortion())
-    cal = calibrate_intrinsics(frames, start, method="joint", check_terms=False)
+    cal = calibrate_intrinsics(frames, start, method="joint", terms="all", check_terms=False)
     assert max(abs(v) for v in _z_scores(cal, truth).values()) < 3.0
 
 
@@ -334,7 +335,7 @@ def test_joint_uncertainties_match_the_scatter_of_repeated_calibrations(sky, tru
     z2 = []
     for seed in range(12):
         cal = calibrate_intrinsics(_frames(sky, seed=100 + seed), _start(truth), method="joint",
-                                   check_terms=False)
+                                   terms="all", check_terms=False)
         z2 += [v * v for v in _z_scores(cal, truth).values()]
     assert 0.6 < np.mean(z2) < 1.5
 
@@ -344,7 +345,7 @@ def test_sine_uncertainties_match_the_scatter_of_repeated_calibrations(sky, trut
     z2 = []
     for seed in range(5):
         cal = calibrate_intrinsics(_frames(sky, seed=200 + seed), _start(truth), method="sine",
-                                   check_terms=False)
+                                   terms="all", check_terms=False)
         z2 += [v * v for v in _z_scores(cal, truth).values()]
     assert 0.4 < np.mean(z2) < 1.8
 
@@ -403,13 +404,49 @@ def test_refraction_must_be_in_the_references_at_low_elevation(truth):
     """At 20-35 deg elevation differential refraction compresses the field vertically
     by ~1e-4: references without it bias the calibration far beyond its uncertainty."""
     sky = _sky(truth, n=14, seed=11, el_deg=(20.0, 35.0))
-    good = calibrate_intrinsics(_frames(sky, seed=12), _start(truth), method="joint", check_terms=False)
+    good = calibrate_intrinsics(_frames(sky, seed=12), _start(truth), method="joint", terms="all",
+                                check_terms=False)
     assert max(abs(v) for v in _z_scores(good, truth).values()) < 3.0
     bad = calibrate_intrinsics(_frames(sky, seed=12, refraction_model="none"), _start(truth),
-                               method="joint", check_terms=False)
+                               method="joint", terms="all", check_terms=False)
     z = _z_scores(bad, truth)
     assert max(abs(v) for v in z.values()) > 5.0
     assert bad.rms_after_rad > good.rms_after_rad
+
+
+def test_ground_frames_without_a_site_are_refused(sky, truth):
+    """Review finding: frames without a site got unrefracted (geocentric) references
+    silently.  calibration_frame records how its references were made; geocentric ones
+    pass only with in_space=True, topocentric ones not with it."""
+    geo = [calibration_frame(s["xy"], s["hip"], s["jd"], label=f"g{k}") for k, s in enumerate(sky[:12])]
+    assert {fr.places for fr in geo} == {"geocentric"}
+    with pytest.raises(ShipstarError, match="'g0' has no observing site.*in_space=True"):
+        calibrate_intrinsics(geo, _start(truth), terms="none")
+    # declared in space it runs (and misses refraction: far worse than the noise floor
+    # of ground frames, which is why the declaration is required)
+    cal = calibrate_intrinsics(geo, _start(truth), terms="none", in_space=True)
+    assert cal.solved and cal.rms_after_arcsec > 1.0
+    topo = [calibration_frame(s["xy"], s["hip"], s["jd"], site=SITE, weather=WEATHER, label=f"t{k}")
+            for k, s in enumerate(sky[:2])]
+    assert topo[0].places == "topocentric"
+    with pytest.raises(ShipstarError, match="'t0' has an observing site"):
+        calibrate_intrinsics(topo + geo, _start(truth), terms="none", in_space=True)
+    cat = calibration_frame(sky[0]["xy"], sky[0]["hip"], sky[0]["jd"], places="catalog")
+    assert cat.places == "catalog"
+    with pytest.raises(ShipstarError, match="places must be one of"):
+        CalibrationFrame(sky[0]["xy"], sky[0]["v_sim"], places="ground")
+
+
+def test_default_terms_are_the_supported_ones(calibrations, frames, truth):
+    """Review finding: terms="all" (the old default) fitted terms the check rejects.  The
+    default now fits exactly the supported terms; "all" reports the unsupported fitted."""
+    full = calibrations["joint"]
+    assert full.terms_checked and full.unsupported_fitted_terms == ("k2", "k3")
+    cal = calibrate_intrinsics(frames, _start(truth), method="joint")
+    assert cal.terms_checked and cal.unsupported_fitted_terms == ()
+    assert cal.fitted_distortion_terms == cal.supported_distortion_terms == full.supported_distortion_terms
+    no_check = calibrate_intrinsics(frames, _start(truth), method="joint", terms="k1", check_terms=False)
+    assert not no_check.terms_checked and no_check.unsupported_fitted_terms == ()
 
 
 # ---------------------------------------------------------------------------------------
@@ -426,7 +463,7 @@ def test_too_few_stars(frames, truth):
 
 def test_frames_with_fewer_than_three_stars_are_skipped_not_fatal(frames, truth):
     tiny = CalibrationFrame(frames[0].xy_px[:2], frames[0].v_ref[:2], frames[0].hip[:2], "tiny")
-    cal = calibrate_intrinsics(list(frames[:12]) + [tiny], _start(truth), check_terms=False)
+    cal = calibrate_intrinsics(list(frames[:12]) + [tiny], _start(truth), terms="all", check_terms=False)
     assert cal.n_frames == 12
 
 
@@ -518,6 +555,7 @@ def test_load_json_star_lists(tmp_path, sky, truth):
     # the ground site in the file: references are the refracted apparent directions
     ang = np.arccos(np.clip(np.sum(fr.v_ref * sky[0]["v_sim"], 1), -1, 1))
     assert ang.max() < 1e-3 * ASEC2RAD
+    assert {f.places for f in loaded.frames} == {"topocentric"}
 
 
 def test_load_json_needs_a_time(tmp_path, sky, truth):

@@ -11,7 +11,7 @@ import sys
 import numpy as np
 import pytest
 
-from shipstar.calibrate.installation import Installation, save_installation
+from shipstar.calibrate.installation import DockConditions, Installation, save_installation
 
 
 def _run(args, cwd):
@@ -34,11 +34,12 @@ def _rows(path):
 
 
 def _noise_frame(path, date_obs):
+    """A frame of sky noise only (no star), mid-exposure at ``date_obs``."""
     from astropy.io import fits
 
     rng = np.random.default_rng(abs(hash(str(path))) % 2**32)
     hdu = fits.PrimaryHDU(rng.poisson(110, (1024, 1024)).astype(np.uint16))
-    hdu.header["DATE-OBS"] = date_obs
+    hdu.header["DATE-AVG"] = date_obs               # mid-exposure
     hdu.writeto(path)
 
 
@@ -161,3 +162,147 @@ def test_bad_input(session, args, fragment):
     proc = _run([*args, "--out", "never.csv"], session)
     _assert_bad_input(proc, fragment)
     assert not (session / "never.csv").exists()
+
+
+def _heading_pitch_roll_arcsec(path):
+    rows = _rows(path)
+    return np.array([[float(r[k]) for k in ("heading_deg", "pitch_deg", "roll_deg")] for r in rows]) * 3600.0
+
+
+def test_deflection_of_the_vertical_moves_pitch_and_roll(session, tmp_path):
+    """Review finding: no way to give the deflection at sea or in dock.  A levelled ship
+    follows the plumb line: xi = 10'' (north) tilts the ship's level by 10'' about the east
+    axis, i.e. pitch and roll together by 10'' (heading 46.5 deg: 6.9'' and 7.3''), the
+    heading unchanged."""
+    base = ["--sensor", "A1=dock/A1", "--install", "A1.toml", *DOCK_SITE]
+    assert _run([*base, "--out", str(tmp_path / "a.csv")], session).returncode == 0
+    proc = _run([*base, "--xi-arcsec", "10", "--out", str(tmp_path / "b.csv")], session)
+    assert proc.returncode == 0, proc.stderr
+    d = _heading_pitch_roll_arcsec(tmp_path / "b.csv") - _heading_pitch_roll_arcsec(tmp_path / "a.csv")
+    assert np.all(np.abs(d[:, 0]) < 0.05)
+    np.testing.assert_allclose(np.hypot(d[:, 1], d[:, 2]), 10.0, atol=0.05)
+    np.testing.assert_allclose(np.abs(d[:, 1]), 10.0 * np.cos(np.radians(46.474586)), atol=0.05)
+
+
+def test_refraction_model_other_than_the_dock_calibration_is_warned(session, tmp_path):
+    """Review finding: the installation's [dock] refraction model was never compared with
+    the one used at sea.  One warning line on stderr, the same text in the JSON summary,
+    and the Earth orientation quality in the summary."""
+    inst = Installation.from_matrix("A1", "A1", session_installation(session),
+                                    dock=DockConditions(0.81, pressure_hpa=1021.7, temperature_c=11.1,
+                                                        refraction_model="almanac", refraction_mode="per-star"))
+    save_installation(inst, tmp_path / "A1.toml")
+    proc = _run(["--sensor", "A1=dock/A1", "--install", str(tmp_path / "A1.toml"), *DOCK_SITE,
+                 "--out", str(tmp_path / "x.csv"), "--json"], session)
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in proc.stderr
+    assert lines[0].startswith("shipstar measure: warning: sensor A1 was calibrated in dock with refraction model "
+                               "'almanac' but this run uses 'erfa': they differ by 0.4")
+    assert summary["warnings"] == [lines[0].split("warning: ", 1)[1]]
+    assert summary["eop"]["quality"] == "measured" and summary["eop"]["dut1_error_s"] < 1e-3
+    proc = _run(["--sensor", "A1=dock/A1", "--install", str(tmp_path / "A1.toml"), *DOCK_SITE,
+                 "--refraction", "almanac", "--out", str(tmp_path / "y.csv"), "--json"], session)
+    assert proc.returncode == 0 and proc.stderr == "" and json.loads(proc.stdout)["warnings"] == []
+
+
+def session_installation(root):
+    from shipstar.calibrate.installation import load_installation
+
+    return load_installation(root / "A1.toml").C_deck_from_sensor
+
+
+@pytest.mark.parametrize("flag, make, fragment", [
+    ("--plots", "file", "exists and is not a directory"),
+    ("--plots", "under-file", "is a file, not a directory"),
+    ("--out", "dir", "is a directory"),
+    ("--plots", "png-dir", "is a directory"),
+])
+def test_bad_output_paths_fail_before_processing(session, tmp_path, flag, make, fragment):
+    """Review finding: --plots naming an existing file failed after all the processing
+    (FileExistsError).  Every output path is checked first."""
+    (tmp_path / "file").write_text("x")
+    target = {"file": tmp_path / "file", "under-file": tmp_path / "file" / "plots", "dir": tmp_path,
+              "png-dir": tmp_path / "plots"}[make]
+    if make == "png-dir":
+        (tmp_path / "plots" / "attitude.png").mkdir(parents=True)
+    out = tmp_path / "att.csv"
+    args = {"--out": str(out), "--plots": str(tmp_path / "p"), flag: str(target)}
+    proc = _run(["--sensor", "A1=dock/A1", "--install", "A1.toml", *DOCK_SITE, "--out", args["--out"],
+                 "--plots", args["--plots"]], session)
+    _assert_bad_input(proc, flag, fragment)
+    assert not out.exists()
+
+
+def test_a_wild_pixel_value_does_not_break_the_frame(session, tmp_path):
+    """Review finding: one pixel of 1e39 overflowed the float32 background mesh (warnings
+    per line, then NaN noise).  The mesh is float64: finite, and the same as without it."""
+    import warnings
+
+    from astropy.io import fits
+
+    from shipstar.extract._background import estimate_mesh
+
+    rng = np.random.default_rng(3)
+    image = rng.poisson(110, (256, 256)).astype(float)
+    clean = estimate_mesh(image)
+    image[100, 37] = 1e39
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        wild = estimate_mesh(image)
+    np.testing.assert_array_equal(wild.bg, clean.bg)
+    assert np.all(np.isfinite(wild.noise)) and np.max(wild.noise) < 2 * np.max(clean.noise)
+
+    shutil.copytree(session / "dock" / "A1", tmp_path / "A1")
+    path = sorted((tmp_path / "A1").glob("*.fits"))[1]
+    with fits.open(path) as hdul:
+        header, data = hdul[0].header.copy(), hdul[0].data.astype(np.float64)
+    data[700, 20] = 1e39
+    header.remove("BZERO", ignore_missing=True)
+    header.remove("BSCALE", ignore_missing=True)
+    fits.PrimaryHDU(data, header).writeto(path, overwrite=True)
+    proc = _run(["--sensor", f"A1={tmp_path / 'A1'}", "--install", "A1.toml", *DOCK_SITE, "--out",
+                 str(tmp_path / "x.csv"), "--json"], session)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["sensors"]["A1"]["n_solved"] == 3
+    assert "Traceback" not in proc.stderr
+    for line in proc.stderr.splitlines():                      # other modules' float32 casts, if any
+        assert line.startswith("shipstar measure: warning: "), line
+    assert len(proc.stderr.splitlines()) <= 5
+
+
+@pytest.mark.parametrize("args, fragment", [
+    (["--xi-arcsec", "500"], "--xi-arcsec"),
+    (["--lon-deg", "1e308"], "longitude must be within [-180, 360]"),
+    (["--eta-arcsec", "3", "--track", "sea/track.csv"], "xi_arcsec and eta_arcsec columns"),
+])
+def test_bad_site_flags(session, args, fragment):
+    base = ["--sensor", "A1=dock/A1", "--install", "A1.toml", "--pressure-hpa", "1021.7", "--temperature-c", "11.1"]
+    if "--track" not in args:
+        base += ["--lat-deg", "31.9", "--lon-deg", "120.3"]
+    proc = _run([*base, *args, "--out", "never.csv"], session)
+    _assert_bad_input(proc, fragment)
+
+
+def test_date_obs_is_mid_for_cameras_that_write_mid_exposure(session, tmp_path):
+    """Frames whose DATE-OBS is the mid-exposure time and that carry nothing else: refused
+    by default (DATE-OBS is the start, FITS standard), measured with --date-obs-is mid at
+    the same times as the simulator's own (DATE-AVG) frames."""
+    from astropy.io import fits
+
+    shutil.copytree(session / "dock" / "A1", tmp_path / "A1")
+    for path in sorted((tmp_path / "A1").glob("*.fits")):
+        with fits.open(path) as hdul:
+            header, data = hdul[0].header.copy(), hdul[0].data.copy()
+        header["DATE-OBS"] = header["DATE-AVG"]
+        for key in ("DATE-AVG", "DATE-BEG", "DATE-END", "EXPTIME", "EXPOSURE"):
+            header.remove(key, ignore_missing=True)
+        fits.PrimaryHDU(data, header).writeto(path, overwrite=True)
+    args = ["--sensor", f"A1={tmp_path / 'A1'}", "--install", "A1.toml", *DOCK_SITE]
+    _assert_bad_input(_run([*args, "--out", str(tmp_path / "x.csv")], session), "no EXPTIME")
+    proc = _run([*args, "--date-obs-is", "mid", "--out", str(tmp_path / "mid.csv")], session)
+    assert proc.returncode == 0, proc.stderr
+    assert _run(["--sensor", "A1=dock/A1", "--install", "A1.toml", *DOCK_SITE, "--out", str(tmp_path / "ref.csv")],
+                session).returncode == 0
+    assert [r["time_utc"] for r in _rows(tmp_path / "mid.csv")] == [r["time_utc"] for r in _rows(tmp_path / "ref.csv")]

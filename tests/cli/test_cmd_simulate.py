@@ -49,7 +49,9 @@ def test_icrs_form_writes_fits_and_truth(tmp_path):
     with fits.open(tmp_path / "orion.fits") as hdul:
         assert len(hdul) == 1 and hdul[0].data.dtype == np.uint16 and hdul[0].data.shape == (1024, 1024)
         assert hdul[0].header["INSTRUME"] == "A1" and hdul[0].header["EXPTIME"] == pytest.approx(0.08)
-        assert hdul[0].header["DATE-OBS"] == "2000-01-01T11:58:55.816"
+        # FITS: DATE-OBS is the start of the exposure, DATE-AVG its middle (the frame's time)
+        assert hdul[0].header["DATE-AVG"] == "2000-01-01T11:58:55.816000"
+        assert hdul[0].header["DATE-OBS"] == "2000-01-01T11:58:55.776000"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["orion.fits", "orion.truth.json"]
 
 

@@ -263,10 +263,37 @@ def test_site_keeps_the_geodetic_position_for_parallax_and_diurnal_aberration():
     (dict(lat_deg=10.0, lon_deg=0.0, height_m=50000.0), "height"),
     (dict(lat_deg=10.0, lon_deg=0.0, xi_arcsec=500.0), "deflection"),
     (dict(lat_deg=90.0, lon_deg=0.0, eta_arcsec=5.0), "pole"),
+    (dict(lat_deg=10.0, lon_deg=1e308), r"longitude 1e\+308 deg is outside \[-180, 360\]"),
+    (dict(lat_deg=10.0, lon_deg=-180.5), r"outside \[-180, 360\]"),
+    (dict(lat_deg=10.0, lon_deg=360.001), r"outside \[-180, 360\]"),
 ])
 def test_site_validation(kwargs, match):
     with pytest.raises(ShipstarError, match=match):
         Site.from_deg(**kwargs)
+
+
+@pytest.mark.parametrize("lon_deg, expected_deg", [(-180.0, 180.0), (180.0, 180.0), (200.0, -160.0),
+                                                   (359.5, -0.5), (360.0, 0.0), (-0.25, -0.25)])
+def test_longitude_is_normalised_to_minus_180_plus_180(lon_deg, expected_deg):
+    """Review finding: 'shipstar apparent --lon-deg 1e308' exited 0.  Longitudes within
+    [-180, 360] are accepted and kept in (-180, 180]; radians far outside are refused."""
+    lon = Site.from_deg(10.0, lon_deg).lon_rad
+    assert -math.pi < lon <= math.pi
+    assert lon == pytest.approx(expected_deg * DEG2RAD, abs=1e-15)
+    with pytest.raises(ShipstarError, match="not a longitude"):
+        Site(0.1, 1e308)
+
+
+def test_apparent_command_refuses_a_longitude_out_of_range():
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-m", "shipstar", "apparent", "--lat-deg", "31.9", "--lon-deg", "1e308",
+                           "--time", DOCK_TIME, "--hip", "32349"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in proc.stderr
+    assert "longitude 1e+308 deg is outside [-180, 360]" in lines[0]
 
 
 def test_frame_context_validation():

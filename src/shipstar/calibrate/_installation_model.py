@@ -29,6 +29,15 @@ class DockConditions:
         Weather used for refraction.
     refraction_model, refraction_mode : str
         e.g. ``"erfa"``, ``"per-star"``.
+    xi_rad, eta_rad : float
+        Deflection of the vertical used (north-south, east-west): the levels follow the
+        plumb line, so it enters the installation elevation and roll one to one.
+    eop_quality : str
+        Worst Earth orientation quality over the session's frames (``"measured"``,
+        ``"predicted"``, ``"extrapolated"``; ``""`` when not recorded).
+    dut1_error_s, polar_motion_error_arcsec : float
+        Largest estimated UT1 - UTC and polar motion errors over the frames (NaN when
+        not recorded).
     """
 
     heading_rad: float
@@ -41,6 +50,11 @@ class DockConditions:
     temperature_c: float = math.nan
     refraction_model: str = ""
     refraction_mode: str = ""
+    xi_rad: float = 0.0
+    eta_rad: float = 0.0
+    eop_quality: str = ""
+    dut1_error_s: float = math.nan
+    polar_motion_error_arcsec: float = math.nan
 
     @property
     def C_hor_from_deck(self) -> np.ndarray:
@@ -79,6 +93,9 @@ class Installation:
     date_utc : str
         ISO 8601 UTC time of the first frame.
     dock : DockConditions or None
+    warnings : tuple of str
+        Accuracy warnings raised while the session was processed (e.g. extrapolated
+        Earth orientation), one line each.
     """
 
     sensor: str
@@ -95,6 +112,7 @@ class Installation:
     session: str = ""
     date_utc: str = ""
     dock: DockConditions | None = field(default=None)
+    warnings: tuple = ()
 
     def __post_init__(self):
         for name in ("az_rad", "el_rad", "roll_rad"):
@@ -106,6 +124,7 @@ class Installation:
             raise ShipstarError(f"installation elevation {math.degrees(self.el_rad):.6g} deg is outside [-90, 90]")
         if not isinstance(self.sensor, str) or not self.sensor:
             raise ShipstarError("installation sensor name must be a non-empty string")
+        object.__setattr__(self, "warnings", tuple(" ".join(str(w).split()) for w in self.warnings))
 
     @property
     def C_deck_from_sensor(self) -> np.ndarray:

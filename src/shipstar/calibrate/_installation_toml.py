@@ -7,7 +7,7 @@ import math
 from pathlib import Path
 
 from shipstar.errors import ShipstarError
-from shipstar.units import DEG2RAD, RAD2DEG
+from shipstar.units import ASEC2RAD, DEG2RAD, RAD2ASEC, RAD2DEG
 
 __all__ = ["save_installation", "load_installation", "FORMAT_NAME", "FORMAT_VERSION"]
 
@@ -20,8 +20,8 @@ _TOP_FLOATS = ("az_deg", "el_deg", "roll_deg") + tuple(f"std_{a}_arcsec" for a i
 _TOP_INTS = ("n_frames", "n_used", "n_failed", "n_rejected")
 _TOP_STRS = ("format", "sensor", "camera", "session", "date_utc")
 _DOCK_FLOATS = ("heading_deg", "pitch_deg", "roll_deg", "lat_deg", "lon_deg", "height_m", "pressure_hpa",
-                "temperature_c")
-_DOCK_STRS = ("refraction_model", "refraction_mode")
+                "temperature_c", "xi_arcsec", "eta_arcsec", "dut1_error_s", "polar_motion_error_arcsec")
+_DOCK_STRS = ("refraction_model", "refraction_mode", "eop_quality")
 
 _HEADER = """\
 # shipstar installation calibration of one star sensor (docs/calibration-dock.md)
@@ -53,14 +53,21 @@ def _render(inst) -> str:
     for prefix, values in (("std", inst.std_arcsec), ("sem", inst.sem_arcsec)):
         lines += [f"{prefix}_{a}_arcsec = {_f(v)}" for a, v in zip(_AXES, values)]
     lines += [f"{k} = {int(getattr(inst, k))}" for k in _TOP_INTS]
+    lines.append(f"warnings = [{', '.join(_s(w) for w in inst.warnings)}]")
     d = inst.dock
     if d is not None:
         lines += ["", "[dock]", f"heading_deg = {_f(d.heading_rad * RAD2DEG)}",
                   f"pitch_deg = {_f(d.pitch_rad * RAD2DEG)}", f"roll_deg = {_f(d.roll_rad * RAD2DEG)}",
                   f"lat_deg = {_f(d.lat_rad * RAD2DEG)}", f"lon_deg = {_f(d.lon_rad * RAD2DEG)}",
-                  f"height_m = {_f(d.height_m)}", f"pressure_hpa = {_f(d.pressure_hpa)}",
+                  f"height_m = {_f(d.height_m)}",
+                  f"xi_arcsec = {_f(d.xi_rad * RAD2ASEC)}      # deflection of the vertical (levels follow it)",
+                  f"eta_arcsec = {_f(d.eta_rad * RAD2ASEC)}",
+                  f"pressure_hpa = {_f(d.pressure_hpa)}",
                   f"temperature_c = {_f(d.temperature_c)}", f"refraction_model = {_s(d.refraction_model)}",
-                  f"refraction_mode = {_s(d.refraction_mode)}"]
+                  f"refraction_mode = {_s(d.refraction_mode)}",
+                  f"eop_quality = {_s(d.eop_quality)}          # Earth orientation: measured, predicted, extrapolated",
+                  f"dut1_error_s = {_f(d.dut1_error_s)}",
+                  f"polar_motion_error_arcsec = {_f(d.polar_motion_error_arcsec)}"]
     return "\n".join(lines) + "\n"
 
 
@@ -127,17 +134,33 @@ def _dock(table, path: Path):
     if not isinstance(table, dict):
         raise ShipstarError(f"installation file {path}: [dock] must be a table")
     _check_keys(table, _DOCK_FLOATS + _DOCK_STRS, "dock.", path)
-    num = {k: _number(table, k, "dock.", path, required=k == "heading_deg", finite=k == "heading_deg")
-           for k in _DOCK_FLOATS}
+    num = {k: _number(table, k, "dock.", path, required=k == "heading_deg",
+                      finite=k in ("heading_deg", "xi_arcsec", "eta_arcsec")) for k in _DOCK_FLOATS}
+
+    def zero_if_nan(x):                 # files written before a key existed: it was 0
+        return 0.0 if math.isnan(x) else x
+
+    quality = _text(table, "eop_quality", "dock.", path, required=False)
+    if quality not in ("", "measured", "predicted", "extrapolated"):
+        raise ShipstarError(f"installation file {path}: dock.eop_quality must be measured, predicted or "
+                            f"extrapolated, got {quality!r}")
     return DockConditions(
         heading_rad=num["heading_deg"] * DEG2RAD,
-        pitch_rad=0.0 if math.isnan(num["pitch_deg"]) else num["pitch_deg"] * DEG2RAD,
-        roll_rad=0.0 if math.isnan(num["roll_deg"]) else num["roll_deg"] * DEG2RAD,
-        lat_rad=num["lat_deg"] * DEG2RAD, lon_rad=num["lon_deg"] * DEG2RAD,
-        height_m=0.0 if math.isnan(num["height_m"]) else num["height_m"],
+        pitch_rad=zero_if_nan(num["pitch_deg"]) * DEG2RAD, roll_rad=zero_if_nan(num["roll_deg"]) * DEG2RAD,
+        lat_rad=num["lat_deg"] * DEG2RAD, lon_rad=num["lon_deg"] * DEG2RAD, height_m=zero_if_nan(num["height_m"]),
         pressure_hpa=num["pressure_hpa"], temperature_c=num["temperature_c"],
         refraction_model=_text(table, "refraction_model", "dock.", path, required=False),
-        refraction_mode=_text(table, "refraction_mode", "dock.", path, required=False))
+        refraction_mode=_text(table, "refraction_mode", "dock.", path, required=False),
+        xi_rad=zero_if_nan(num["xi_arcsec"]) * ASEC2RAD, eta_rad=zero_if_nan(num["eta_arcsec"]) * ASEC2RAD,
+        eop_quality=quality, dut1_error_s=num["dut1_error_s"],
+        polar_motion_error_arcsec=num["polar_motion_error_arcsec"])
+
+
+def _warnings(doc: dict, path: Path) -> tuple:
+    value = doc.get("warnings", [])
+    if not isinstance(value, list) or not all(isinstance(w, str) for w in value):
+        raise ShipstarError(f"installation file {path}: warnings must be a list of strings, got {value!r}")
+    return tuple(value)
 
 
 def load_installation(path):
@@ -153,7 +176,7 @@ def load_installation(path):
 
     path = Path(path)
     doc = _read_toml(path)
-    _check_keys(doc, _TOP_FLOATS + _TOP_INTS + _TOP_STRS + ("format_version", "dock"), "", path)
+    _check_keys(doc, _TOP_FLOATS + _TOP_INTS + _TOP_STRS + ("format_version", "dock", "warnings"), "", path)
     if doc.get("format", FORMAT_NAME) != FORMAT_NAME:
         raise ShipstarError(f"installation file {path}: format is {doc.get('format')!r}, expected {FORMAT_NAME!r}")
     version = doc.get("format_version", FORMAT_VERSION)
@@ -174,4 +197,4 @@ def load_installation(path):
         az_rad=angles[0], el_rad=angles[1], roll_rad=angles[2], std_arcsec=std, sem_arcsec=sem,
         session=_text(doc, "session", "", path, required=False), date_utc=_text(doc, "date_utc", "", path,
                                                                                required=False),
-        dock=_dock(doc["dock"], path) if "dock" in doc else None, **counts)
+        dock=_dock(doc["dock"], path) if "dock" in doc else None, warnings=_warnings(doc, path), **counts)

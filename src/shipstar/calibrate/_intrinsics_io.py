@@ -3,11 +3,14 @@
 **FITS images** (``*.fits``, ``*.fit``, ``*.fts``; as ``shipstar simulate`` writes them):
 the stars are extracted and identified (:func:`shipstar.identify.solve_image`, with a
 focal length known to +-5 % and centroids to +-3 px, since the camera is not calibrated
-yet).  Header keywords used: ``DATE-OBS`` (UTC, mid-exposure; required), ``INSTRUME``
-or ``SENSOR`` (camera name), and for frames taken on the ground ``SITELAT``,
-``SITELONG``, ``SITEELEV`` (deg, deg, m), ``PRESSURE`` (hPa), ``TEMPERAT`` (C),
-``REFRMOD``.  ``SIMFRAME = 'icrs'`` marks a simulated frame in space, rendered without
-aberration: its reference directions are catalog places.
+yet).  They are read by :mod:`shipstar._fitsio` (the one FITS reader): the time is the
+mid-exposure UTC (``DATE-AVG``, else ``DATE-BEG``/``DATE-OBS`` = start plus half of
+``EXPTIME``; ``date_obs_is="mid"`` for cameras that write mid-exposure into
+``DATE-OBS``), rows per ``ROWORDER``.  Other keywords used: ``INSTRUME`` or ``SENSOR``
+(camera name), and for frames taken on the ground ``SITELAT``, ``SITELONG``,
+``SITEELEV`` (deg, deg, m), ``PRESSURE`` (hPa), ``TEMPERAT`` (C), ``REFRMOD``.
+``SIMFRAME = 'icrs'`` marks a simulated frame in space, rendered without aberration:
+its reference directions are catalog places.
 
 **JSON star lists** (``*.json``, not ``*.truth.json``), e.g. ``shipstar solve --json``
 output::
@@ -33,12 +36,12 @@ from pathlib import Path
 
 import numpy as np
 
+from shipstar._fitsio import DATE_OBS_CHOICES, FITS_SUFFIXES, NO_DATE_TEXT
 from shipstar.errors import ShipstarError
 
 __all__ = ["LoadedFrames", "load_calibration_frames", "FITS_SUFFIXES",
            "IDENTIFY_FOV_TOLERANCE", "IDENTIFY_CENTROID_ERROR_PX"]
 
-FITS_SUFFIXES = (".fits", ".fit", ".fts")
 #: identification of images taken with a not yet calibrated camera
 IDENTIFY_FOV_TOLERANCE = 0.05
 IDENTIFY_CENTROID_ERROR_PX = 3.0
@@ -79,6 +82,7 @@ class _Meta:
     relative_humidity: float | None = None
     refraction_model: str | None = None
     places: str = "apparent"
+    time_problem: str = ""
 
 
 def _number(value, what: str) -> float:
@@ -137,44 +141,29 @@ def _json_stars(path: Path):
     return np.array(xy, float).reshape(-1, 2), np.array(hip, np.int64), _json_meta(path, data)
 
 
-def _fits_meta(path: Path, header, shape) -> _Meta:
-    meta = _Meta(path.name, utc=header.get("DATE-OBS"), image_shape_hw=tuple(shape))
-    name = header.get("INSTRUME", header.get("SENSOR"))
-    meta.camera_name = str(name).strip() if name is not None else None
-    for key, attr in (("SITELAT", "lat_deg"), ("SITELONG", "lon_deg"), ("SITEELEV", "height_m"),
-                      ("PRESSURE", "pressure_hpa"), ("TEMPERAT", "temperature_c")):
-        if header.get(key) is not None:
-            setattr(meta, attr, _number(header[key], f"FITS {path.name!r}: {key}"))
-    if header.get("REFRMOD") is not None:
-        meta.refraction_model = str(header["REFRMOD"]).strip()
-    if str(header.get("SIMFRAME", "")).strip().lower() == "icrs":
+def _fits_meta(info) -> _Meta:
+    """A :class:`shipstar._fitsio.FitsFrameInfo` as calibration metadata."""
+    from shipstar.sky.time import iso_from_utc_jd
+
+    meta = _Meta(info.name, image_shape_hw=tuple(info.shape_hw), time_problem=info.time_problem)
+    if info.has_time:
+        meta.utc = iso_from_utc_jd(info.utc_jd1, info.utc_jd2, 6).rstrip("Z")
+    meta.camera_name = (info.instrume or info.sensor) or None
+    for attr in ("lat_deg", "lon_deg", "height_m", "pressure_hpa", "temperature_c"):
+        if getattr(info, attr) is not None:
+            setattr(meta, attr, getattr(info, attr))
+    meta.refraction_model = info.refraction_model or None
+    if info.sim_frame == "icrs":
         meta.places = "catalog"
     return meta
 
 
-def _fits_header(path: Path):
-    import warnings
-
-    from astropy.io import fits
-
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            with fits.open(path, memmap=False) as hdul:
-                for hdu in hdul:
-                    if "DATE-OBS" in hdu.header or getattr(hdu, "data", None) is not None:
-                        return hdu.header.copy()
-    except (OSError, ValueError, TypeError, IndexError, KeyError, EOFError) as exc:
-        raise ShipstarError(f"cannot read FITS file {path.name!r}: {str(exc).splitlines()[0]}") from None
-    raise ShipstarError(f"FITS file {path.name!r} has no image")
-
-
-def _fits_stars(path: Path, camera, database):
-    from shipstar.extract import read_image
+def _fits_stars(path: Path, camera, database, date_obs_is: str = "start"):
+    from shipstar._fitsio import read_fits
     from shipstar.identify import solve_image
 
-    pixels = read_image(path)
-    meta = _fits_meta(path, _fits_header(path), pixels.shape)
+    pixels, info = read_fits(path, date_obs_is=date_obs_is)
+    meta = _fits_meta(info)
     if (pixels.shape[1], pixels.shape[0]) != (camera.width_px, camera.height_px):
         raise ShipstarError(f"frame {path.name!r} is {pixels.shape[1]}x{pixels.shape[0]} px but camera "
                             f"{camera.name!r} is {camera.width_px}x{camera.height_px} px")
@@ -193,6 +182,8 @@ def _frame_from(xy, hip, meta: _Meta, overrides: dict, catalog):
     from shipstar.sky.time import utc_jd_from_iso
 
     utc = overrides.get("utc") or meta.utc
+    if utc is None and meta.time_problem and NO_DATE_TEXT not in meta.time_problem:
+        raise ShipstarError(f"{meta.time_problem}; or give the time with --date-obs")
     if utc is None:
         raise ShipstarError(f"frame {meta.label!r} has no observation time (DATE-OBS / \"date_obs\"); "
                             "give it with --date-obs")
@@ -214,7 +205,7 @@ def _frame_from(xy, hip, meta: _Meta, overrides: dict, catalog):
 
 def load_calibration_frames(directory, camera, *, utc: str | None = None, site=None,
                             weather=None, refraction_model: str | None = None,
-                            catalog=None) -> LoadedFrames:
+                            catalog=None, date_obs_is: str = "start") -> LoadedFrames:
     """Read every frame of ``directory`` (FITS images, else JSON star lists).
 
     Parameters
@@ -229,6 +220,9 @@ def load_calibration_frames(directory, camera, *, utc: str | None = None, site=N
         topocentric places and refraction).
     catalog : StarCatalog, optional
         Default: the full Hipparcos catalog.
+    date_obs_is : {"start", "mid"}
+        What the FITS files' DATE-OBS means when they have no DATE-AVG / DATE-BEG (the
+        FITS standard: the start of the exposure).
 
     Raises
     ------
@@ -236,6 +230,8 @@ def load_calibration_frames(directory, camera, *, utc: str | None = None, site=N
         Not a directory, no frames in it, unreadable or malformed files, a frame without
         a time.
     """
+    if date_obs_is not in DATE_OBS_CHOICES:
+        raise ShipstarError(f"date_obs_is must be one of {', '.join(DATE_OBS_CHOICES)}, got {date_obs_is!r}")
     root = Path(directory)
     if not root.is_dir():
         raise ShipstarError(f"frames directory {str(root)!r} does not exist or is not a directory")
@@ -258,7 +254,7 @@ def load_calibration_frames(directory, camera, *, utc: str | None = None, site=N
         database = build_database(camera, fov_tolerance=IDENTIFY_FOV_TOLERANCE)
     frames, skipped = [], []
     for path in fits_files or json_files:
-        got = _fits_stars(path, camera, database) if fits_files else _json_stars(path)
+        got = _fits_stars(path, camera, database, date_obs_is) if fits_files else _json_stars(path)
         if isinstance(got, str):
             skipped.append((path.name, got))
             continue

@@ -81,7 +81,7 @@ def calibrate_installation(C_hor_from_sensor, C_hor_from_deck, *, solved=None, s
     k_sigma : float
         Outlier threshold of :func:`robust_mean_rotation`.
     **meta
-        ``session``, ``date_utc``, ``dock`` (:class:`DockConditions`).
+        ``session``, ``date_utc``, ``dock`` (:class:`DockConditions`), ``warnings`` (tuple of str).
 
     Returns
     -------

@@ -8,6 +8,13 @@ any laboratory equipment (docs/calibration-intrinsic.md)::
     cal = calibrate_intrinsics(frames, camera_preset("seed002"), method="joint")
     cal.camera, cal.sigma, cal.rms_after_rad, cal.supported_distortion_terms
 
+Frames taken on the ground need their observing site (refraction changes interstar
+angles by ~8'' across a 4 deg field at 45 deg elevation); frames without one are
+refused unless they are declared taken above the atmosphere (``in_space=True``) or are
+simulated in space (catalog places).  By default only the distortion terms the data
+support are fitted (``terms="auto"``): a Weng term fitted to noise drags the principal
+point along the decentring valley (20-30 px on a distortion-free 8 deg camera).
+
 Methods:
 
 ``"cosine"``, ``"sine"``
@@ -44,8 +51,8 @@ from shipstar.errors import ShipstarError
 from shipstar.units import RAD2ASEC
 
 __all__ = [
-    "METHODS", "DISTORTION_TERMS", "PARAM_NAMES", "MAX_EDGE_SIGMA_PX_PER_PX",
-    "CalibrationFrame", "IntrinsicCalibration",
+    "METHODS", "DISTORTION_TERMS", "PARAM_NAMES", "MAX_EDGE_SIGMA_PX_PER_PX", "REFERENCE_PLACES",
+    "CalibrationFrame", "IntrinsicCalibration", "check_reference_places",
     "calibrate_intrinsics", "calibration_frame", "reference_directions", "PLACES",
     "interstar_rms_rad", "residual_vectors_px",
     "LoadedFrames", "load_calibration_frames", "plot_residuals",
@@ -59,6 +66,8 @@ DISTORTION_TERMS = TERMS
 #: from the weakly observable principal point; stars only within 150 px of the centre:
 #: 1.2e5 px)
 MAX_EDGE_SIGMA_PX_PER_PX = 1e4
+#: How a frame's reference directions were made (:attr:`CalibrationFrame.places`)
+REFERENCE_PLACES = ("topocentric", "geocentric", "catalog", "")
 #: A frame needs this many matched stars to contribute (3 pairs, 3 constraints)
 MIN_STARS_PER_FRAME = 3
 #: Independent constraints (2 per star, minus 3 per frame for its attitude) per parameter
@@ -89,6 +98,12 @@ class CalibrationFrame:
         Sensor that took the frame (FITS INSTRUME); frames of different cameras are refused.
     image_shape_hw : (int, int) or None
         Image size, checked against the camera.
+    places : str
+        How ``v_ref`` was made (:func:`calibration_frame` sets it): ``"topocentric"``
+        (apparent places at the observing site, refracted unless the model is
+        ``"none"``), ``"geocentric"`` (apparent places without a site: right only above
+        the atmosphere), ``"catalog"`` (catalog directions: simulated frames in space)
+        or ``""`` (given by the caller, taken as it is).
     """
 
     xy_px: np.ndarray
@@ -97,6 +112,7 @@ class CalibrationFrame:
     label: str = ""
     camera_name: str | None = None
     image_shape_hw: tuple | None = None
+    places: str = ""
 
     def __post_init__(self):
         where = f"frame {self.label!r}" if self.label else "frame"
@@ -119,6 +135,9 @@ class CalibrationFrame:
         object.__setattr__(self, "hip", hip.astype(np.int64))
         if self.image_shape_hw is not None:
             object.__setattr__(self, "image_shape_hw", tuple(int(n) for n in self.image_shape_hw))
+        if self.places not in REFERENCE_PLACES:
+            raise ShipstarError(f"{where}: places must be one of {', '.join(map(repr, REFERENCE_PLACES))}, "
+                                f"got {self.places!r}")
 
     def __len__(self) -> int:
         return len(self.xy_px)
@@ -156,7 +175,8 @@ def calibration_frame(xy_px, hip, utc, *, catalog=None, site=None, weather=None,
     keep = hip >= 0
     v = reference_directions(hip[keep], jd1, jd2, catalog=catalog, site=site, weather=weather,
                              refraction_model=refraction_model, eop=eop, places=places)
-    return CalibrationFrame(xy[keep], v, hip[keep], label, camera_name, image_shape_hw)
+    kind = "topocentric" if site is not None else ("catalog" if places == "catalog" else "geocentric")
+    return CalibrationFrame(xy[keep], v, hip[keep], label, camera_name, image_shape_hw, kind)
 
 
 # ---------------------------------------------------------------------------------------
@@ -194,7 +214,7 @@ class IntrinsicCalibration:
         Two-step cycles or Levenberg-Marquardt iterations.
     supported_distortion_terms : tuple of str
         Weng terms (short names) the data support (likelihood-ratio forward selection);
-        empty when the check was not run.
+        empty when the check was not run (see ``terms_checked``) or none is supported.
     term_delta_chi2 : dict
         Chi-square drop each term brought in the selection.
     xy_px, residual_before_px, residual_after_px : ndarray (N, 2)
@@ -203,6 +223,9 @@ class IntrinsicCalibration:
     frame_of_star : ndarray (N,)
     input_camera : Camera
         The camera the calibration started from (its residuals are "before").
+    terms_checked : bool
+        Whether the term-support check ran (``supported_distortion_terms`` means
+        something only then).
     """
 
     solved: bool
@@ -226,6 +249,21 @@ class IntrinsicCalibration:
     residual_after_px: np.ndarray = field(default=None, repr=False)
     frame_of_star: np.ndarray = field(default=None, repr=False)
     input_camera: Camera = field(default=None, repr=False)
+    terms_checked: bool = False
+
+    @property
+    def fitted_distortion_terms(self) -> tuple:
+        """Short names of the Weng terms fitted (``"k1"``, ...)."""
+        by_field = {v: k for k, v in TERM_FIELDS.items()}
+        return tuple(by_field[n] for n in self.fitted if n in by_field)
+
+    @property
+    def unsupported_fitted_terms(self) -> tuple:
+        """Fitted Weng terms the term check found unsupported (their values are fitted
+        noise); empty when the check did not run."""
+        if not self.terms_checked:
+            return ()
+        return tuple(t for t in self.fitted_distortion_terms if t not in self.supported_distortion_terms)
 
     @property
     def rms_before_arcsec(self) -> float:
@@ -263,7 +301,9 @@ class IntrinsicCalibration:
             "rms_after_rad": num(self.rms_after_rad), "rms_after_arcsec": num(self.rms_after_arcsec),
             "n_frames": int(self.n_frames), "n_stars": int(self.n_stars), "n_pairs": int(self.n_pairs),
             "iterations": int(self.iterations),
+            "terms_checked": bool(self.terms_checked),
             "supported_distortion_terms": list(self.supported_distortion_terms),
+            "unsupported_fitted_terms": list(self.unsupported_fitted_terms),
             "term_delta_chi2": {k: num(v) for k, v in self.term_delta_chi2.items()},
         }
 
@@ -294,6 +334,33 @@ def _resolve_terms(terms):
         if short not in out:
             out.append(short)
     return tuple(t for t in TERMS if t in out), False
+
+
+def check_reference_places(frames, in_space: bool = False) -> None:
+    """Refuse frames whose reference directions do not fit where they were taken.
+
+    A frame without an observing site has no refraction in its references; on the ground
+    that bends interstar angles by ~8'' across a 4 deg field at 45 deg elevation and the
+    calibration absorbs it into f and the distortion.  Such ``"geocentric"`` frames pass
+    only with ``in_space=True``; with it, frames with a site (``"topocentric"``) are
+    refused as contradictory.  Catalog places (simulated frames in space) and frames
+    whose references the caller made (``places=""``) pass.
+
+    Raises
+    ------
+    ShipstarError
+    """
+    for k, fr in enumerate(frames):
+        label = getattr(fr, "label", "") or f"#{k}"
+        places = getattr(fr, "places", "")
+        if places == "geocentric" and not in_space:
+            raise ShipstarError(
+                f"frame {label!r} has no observing site, so its reference directions have no refraction "
+                "(~8'' across a 4 deg field on the ground): give the site (--lat-deg/--lon-deg, or site= to "
+                "calibration_frame) or declare frames taken above the atmosphere (--in-space, in_space=True)")
+        if places == "topocentric" and in_space:
+            raise ShipstarError(f"frame {label!r} has an observing site (taken on the ground), but the frames "
+                                "are declared taken in space (--in-space, in_space=True)")
 
 
 def _check_frames(frames, camera: Camera):
@@ -411,9 +478,10 @@ def residual_vectors_px(stars: StarSet, camera: Camera) -> np.ndarray:
 # The calibration
 # ---------------------------------------------------------------------------------------
 
-def calibrate_intrinsics(frames, camera: Camera, *, method: str = "joint", terms="all",
+def calibrate_intrinsics(frames, camera: Camera, *, method: str = "joint", terms="auto",
                          attitudes: bool = True, robust: bool | None = None,
-                         check_terms: bool = True, max_cycles: int = 300) -> IntrinsicCalibration:
+                         check_terms: bool = True, max_cycles: int = 300,
+                         in_space: bool = False) -> IntrinsicCalibration:
     """Calibrate focal length, principal point and Weng distortion from star frames.
 
     Parameters
@@ -425,10 +493,12 @@ def calibrate_intrinsics(frames, camera: Camera, *, method: str = "joint", terms
         The nominal camera: starting point (its distortion is ignored: every method
         starts from none), pixel pitch, image size; fixed parameters keep its values.
     method : {"cosine", "sine", "joint"}
-    terms : "all", "auto", "none" or sequence of str
+    terms : "auto", "all", "none" or sequence of str
         Distortion terms to fit (``"k1", "k2", "k3", "p1", "p2", "s1", "s2"`` or the
-        Distortion field names).  ``"none"`` with ``"cosine"``/``"sine"`` is the seed's
-        plain method; ``"auto"`` fits the terms the data support.
+        Distortion field names).  ``"auto"`` (default) fits the terms the data support
+        (the check always runs); ``"all"`` is seed 002's full Weng model, whose
+        unsupported terms fit noise (see ``unsupported_fitted_terms``); ``"none"`` with
+        ``"cosine"``/``"sine"`` is the seed's plain method.
     attitudes : bool
         ``"joint"`` only: fit per-star directions with a free attitude per frame (True)
         or the interstar angles (False).
@@ -436,15 +506,19 @@ def calibrate_intrinsics(frames, camera: Camera, *, method: str = "joint", terms
         Huber loss.  Default: True for ``"joint"``; the seed's methods are plain least
         squares (False).
     check_terms : bool
-        Run the term-support check (a few extra joint fits).
+        Run the term-support check (a few extra joint fits) for explicit ``terms``.
     max_cycles : int
         Two-step cycles before giving up (``solved=False``).
+    in_space : bool
+        The frames were taken above the atmosphere: frames without a site are accepted
+        (:func:`check_reference_places`).
 
     Raises
     ------
     ShipstarError
         Bad arguments, frames of different cameras or sizes, centroids outside the image,
-        too few stars for the parameters, or a degenerate star geometry.
+        ground frames without a site, too few stars for the parameters, or a degenerate
+        star geometry.
     """
     from shipstar.calibrate._intrinsics_select import select_terms
     from shipstar.calibrate._intrinsics_solve import all_free
@@ -453,6 +527,7 @@ def calibrate_intrinsics(frames, camera: Camera, *, method: str = "joint", terms
         raise ShipstarError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
     wanted, auto = _resolve_terms(terms)
     frames = _check_frames(frames, camera)
+    check_reference_places(frames, in_space)
     robust = (method == "joint") if robust is None else bool(robust)
     free = all_free([TERM_FIELDS[t] for t in wanted])
     stars = _star_set(frames, len(free))
@@ -488,7 +563,7 @@ def _unsolved(stars, camera, method, free, selection, reason) -> IntrinsicCalibr
         supported_distortion_terms=selection.supported if selection else (),
         term_delta_chi2=dict(selection.delta_chi2) if selection else {},
         xy_px=stars.xy_px, residual_before_px=before, residual_after_px=before,
-        frame_of_star=stars.star_frame, input_camera=camera)
+        frame_of_star=stars.star_frame, input_camera=camera, terms_checked=selection is not None)
 
 
 def _run(stars, camera, start, method, wanted, attitudes, robust, max_cycles, selection):
@@ -531,5 +606,5 @@ def _run(stars, camera, start, method, wanted, attitudes, robust, max_cycles, se
         term_delta_chi2=dict(selection.delta_chi2) if selection else {},
         xy_px=stars.xy_px, residual_before_px=residual_vectors_px(stars, camera),
         residual_after_px=residual_vectors_px(stars, out.camera), frame_of_star=stars.star_frame,
-        input_camera=camera,
+        input_camera=camera, terms_checked=selection is not None,
     )

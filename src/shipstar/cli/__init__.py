@@ -10,6 +10,12 @@ Modules import their heavy dependencies inside ``run`` so that ``shipstar --help
 fast.  Errors a user can cause are :class:`shipstar.errors.ShipstarError`; they are
 printed as one line ``shipstar <command>: error: <message>`` with exit code 2, never a
 traceback (``--debug`` shows it).
+
+Warnings raised while a command runs (:class:`shipstar.errors.AccuracyWarning`:
+extrapolated Earth orientation, an expired leap-second table, a refraction model that
+differs from the dock calibration's) are recorded and printed once each, as one line
+``shipstar <command>: warning: <message>`` on stderr after the command's output; a
+command can put them into its own output too (``shipstar.cli._common.accuracy_warnings``).
 """
 
 from __future__ import annotations
@@ -18,8 +24,9 @@ import argparse
 import importlib
 import pkgutil
 import sys
+import warnings
 
-from shipstar.errors import ShipstarError
+from shipstar.errors import AccuracyWarning, ShipstarError
 
 __all__ = ["main", "build_parser", "OneLineErrorParser"]
 
@@ -79,21 +86,47 @@ def main(argv=None) -> int:
     if not getattr(args, "run", None):
         parser.print_help()
         return EXIT_BAD_INPUT
-    try:
-        return int(args.run(args) or 0)
-    except ShipstarError as exc:
-        if args.debug:
-            raise
-        print(f"shipstar {args.command}: error: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except (OSError, MemoryError) as exc:
-        if args.debug:
-            raise
-        print(f"shipstar {args.command}: error: {exc.__class__.__name__}: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print(f"shipstar {args.command}: interrupted", file=sys.stderr)
-        return 130
+    where = _command_name(args)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", AccuracyWarning)
+        args.caught_warnings = caught
+        try:
+            code = int(args.run(args) or 0)
+        except ShipstarError as exc:
+            if args.debug:
+                raise
+            print(f"{where}: error: {exc}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        except (OSError, MemoryError) as exc:
+            if args.debug:
+                raise
+            print(f"{where}: error: {exc.__class__.__name__}: {exc}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        except KeyboardInterrupt:
+            print(f"{where}: interrupted", file=sys.stderr)
+            return 130
+    _print_warnings(where, caught)
+    return code
+
+
+def _command_name(args) -> str:
+    """``shipstar measure``, ``shipstar calibrate install``, ..."""
+    words = [args.command] + [v for k, v in sorted(vars(args).items())
+                              if k.endswith("_command") and isinstance(v, str)]
+    return " ".join(["shipstar", *words])
+
+
+def _print_warnings(where: str, caught) -> None:
+    """Each distinct warning once, on one line (the category named unless it is an
+    AccuracyWarning)."""
+    lines = []
+    for w in caught:
+        text = " ".join(str(w.message).split())
+        if not issubclass(w.category, AccuracyWarning):
+            text = f"{w.category.__name__}: {text}"
+        lines.append(f"{where}: warning: {text}")
+    for line in dict.fromkeys(lines):
+        print(line, file=sys.stderr)
 
 
 def _entry() -> None:  # pragma: no cover - console script wrapper

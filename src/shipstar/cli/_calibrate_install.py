@@ -9,22 +9,40 @@ from __future__ import annotations
 import argparse
 import sys
 
-from shipstar.cli._common import emit_json, finite_float, fraction, latitude_deg
+from shipstar.cli._common import (
+    accuracy_warnings,
+    check_output_file,
+    deflection_arcsec,
+    emit_json,
+    finite_float,
+    fraction,
+    latitude_deg,
+    longitude_deg,
+)
 
 __all__ = ["add_install_parser", "run_install"]
 
 EPILOG = """\
 example (seed 000's dock night, sensor A1):
   shipstar calibrate install --frames dock/A1 --sensor A1 --camera A1 \\
-      --lat-deg 31.9 --lon-deg 120.3 --heading-deg 46.474586 --pitch-deg 0 --roll-deg 0 \\
+      --lat-deg 31.9 --lon-deg 120.3 --xi-arcsec 0 --eta-arcsec 0 \\
+      --heading-deg 46.474586 --pitch-deg 0 --roll-deg 0 \\
       --pressure-hpa 1021.7 --temperature-c 11.1 --out A1.install.toml --json
 
-Frames: one sensor's FITS files (DATE-OBS = mid-exposure UTC), in time order by file
-name.  The ship's true attitude comes from the theodolite (heading) and the levels
-(pitch, roll).  Each frame gives C_deck_from_sensor = C_hor_from_deck.T @ C_hor_from_sensor;
+Frames: one sensor's FITS files, in time order by file name; the frame time is
+mid-exposure UTC: DATE-AVG, else DATE-OBS (the start, FITS standard) plus EXPTIME/2
+(--date-obs-is mid: DATE-OBS is already mid-exposure).
+
+The ship's true attitude comes from the theodolite (heading) and the levels (pitch,
+roll).  The levels follow the plumb line, so give the dock's deflection of the vertical
+(--xi-arcsec north-south, --eta-arcsec east-west; 5-30'' in most places): left out, it
+goes one to one into the installation elevation and roll and comes back at sea as pitch
+and roll bias.  Each frame gives C_deck_from_sensor = C_hor_from_deck.T @ C_hor_from_sensor;
 the frames are averaged on SO(3) after rejecting outliers, and the installation angles
-(az from the bow toward starboard, el above the deck, roll about the boresight) are written
-with their per-frame std and standard error (docs/calibration-dock.md).
+(az from the bow toward starboard, el above the deck, roll about the boresight) are
+written with their per-frame std and standard error (docs/calibration-dock.md), the dock
+conditions (weather, refraction model, deflection of the vertical), the Earth orientation
+quality and any accuracy warnings.
 Exit codes: 0 every frame solved; 1 written, but some frames failed (listed); 2 bad input.
 """
 
@@ -40,8 +58,12 @@ def add_install_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--sensor", required=True, metavar="NAME", help="sensor name, e.g. A1")
     p.add_argument("--camera", required=True, metavar="NAME|FILE", help="camera preset or camera TOML file")
     p.add_argument("--lat-deg", required=True, type=latitude_deg, help="dock geodetic latitude (deg)")
-    p.add_argument("--lon-deg", required=True, type=finite_float, help="dock longitude, east positive (deg)")
+    p.add_argument("--lon-deg", required=True, type=longitude_deg, help="dock longitude, east positive (deg)")
     p.add_argument("--height-m", type=finite_float, default=0.0, help="height above WGS84 (m, default 0)")
+    p.add_argument("--xi-arcsec", type=deflection_arcsec, default=0.0,
+                   help="deflection of the vertical at the dock, north-south (arcsec, default 0)")
+    p.add_argument("--eta-arcsec", type=deflection_arcsec, default=0.0,
+                   help="deflection of the vertical at the dock, east-west (arcsec, default 0)")
     p.add_argument("--heading-deg", required=True, type=finite_float, help="true ship heading K0 (deg)")
     p.add_argument("--pitch-deg", type=finite_float, default=0.0, help="ship pitch psi0 from the levels (deg)")
     p.add_argument("--roll-deg", type=finite_float, default=0.0, help="ship roll theta0 from the levels (deg)")
@@ -52,6 +74,9 @@ def add_install_parser(subparsers) -> argparse.ArgumentParser:
                    help="refraction model (default erfa; almanac = the seeds' model)")
     p.add_argument("--refraction-mode", choices=("per-star", "boresight"), default="per-star",
                    help="per-star refraction (default) or the seed's ref. [9] boresight-only correction")
+    p.add_argument("--date-obs-is", choices=("start", "mid"), default="start",
+                   help="what the frames' DATE-OBS means: start of the exposure (FITS standard, default) or "
+                        "mid-exposure (cameras that write it so)")
     p.add_argument("--session", metavar="LABEL", help="session label recorded in the file (default: DIR)")
     p.add_argument("--out", required=True, metavar="FILE.toml", help="installation file to write")
     p.add_argument("--progress", action="store_true", help="progress bar on stderr (default: only on a terminal)")
@@ -65,9 +90,9 @@ def _process(args, camera):
     from shipstar.pipeline._frames import check_sensor_name
     from shipstar.pipeline._progress import ProgressBar
 
-    frames = scan_frames(args.frames)
+    frames = scan_frames(args.frames, date_obs_is=args.date_obs_is)
     check_sensor_name(frames, args.sensor, camera.name, args.frames)
-    track = Track.fixed(args.lat_deg, args.lon_deg, args.height_m)
+    track = Track.fixed(args.lat_deg, args.lon_deg, args.height_m, args.xi_arcsec, args.eta_arcsec)
     weather = WeatherTable.constant(args.pressure_hpa, args.temperature_c, args.relative_humidity)
     options = PipelineOptions(refraction_model=args.refraction, refraction=args.refraction_mode)
     bar = ProgressBar(True if args.progress else None)
@@ -82,21 +107,27 @@ def _calibrate(args, camera, frames, results):
     import numpy as np
 
     from shipstar.calibrate.installation import DockConditions, calibrate_installation
-    from shipstar.units import DEG2RAD
+    from shipstar.pipeline import eop_quality
+    from shipstar.units import ASEC2RAD, DEG2RAD
 
+    eop = eop_quality([f.utc_jd1 for f in frames], [f.utc_jd2 for f in frames])
     dock = DockConditions(args.heading_deg * DEG2RAD, args.pitch_deg * DEG2RAD, args.roll_deg * DEG2RAD,
                           args.lat_deg * DEG2RAD, args.lon_deg * DEG2RAD, args.height_m, args.pressure_hpa,
-                          args.temperature_c, args.refraction, args.refraction_mode)
+                          args.temperature_c, args.refraction, args.refraction_mode,
+                          xi_rad=args.xi_arcsec * ASEC2RAD, eta_rad=args.eta_arcsec * ASEC2RAD,
+                          eop_quality=eop.quality, dut1_error_s=eop.dut1_error_s,
+                          polar_motion_error_arcsec=eop.polar_motion_error_arcsec)
     C_hs = np.array([r.C_hor_from_sensor for r in results])
     return calibrate_installation(
         C_hs, dock.C_hor_from_deck, solved=[r.solved for r in results], sensor=args.sensor, camera=camera.name,
         reasons=[r.reason for r in results], session=args.session or str(args.frames),
-        date_utc=frames[0].utc_iso, dock=dock)
+        date_utc=frames[0].utc_iso, dock=dock, warnings=tuple(accuracy_warnings(args)))
 
 
 def _report(inst, results, out) -> dict:
-    from shipstar.units import RAD2DEG
+    from shipstar.units import RAD2ASEC, RAD2DEG
 
+    d = inst.dock
     return {
         "sensor": inst.sensor, "camera": inst.camera, "out": str(out),
         "az_deg": inst.az_rad * RAD2DEG, "el_deg": inst.el_rad * RAD2DEG, "roll_deg": inst.roll_rad * RAD2DEG,
@@ -104,6 +135,11 @@ def _report(inst, results, out) -> dict:
         "sem_arcsec": dict(zip(("az", "el", "roll"), inst.sem_arcsec)),
         "n_frames": inst.n_frames, "n_used": inst.n_used, "n_failed": inst.n_failed, "n_rejected": inst.n_rejected,
         "failures": [{"frame": r.label, "time_utc": r.utc_iso, "reason": r.reason} for r in results if not r.solved],
+        "xi_arcsec": d.xi_rad * RAD2ASEC, "eta_arcsec": d.eta_rad * RAD2ASEC,
+        "refraction_model": d.refraction_model, "refraction_mode": d.refraction_mode,
+        "eop": {"quality": d.eop_quality, "dut1_error_s": d.dut1_error_s,
+                "polar_motion_error_arcsec": d.polar_motion_error_arcsec},
+        "warnings": list(inst.warnings),
     }
 
 
@@ -115,6 +151,10 @@ def _print_text(rep: dict) -> None:
         print(f"  {name:9s} {rep[k + '_deg']:14.7f} deg   std {s[k]:8.3f}''   sem {e[k]:7.3f}''")
     for f in rep["failures"]:
         print(f"  failed: {f['frame']} ({f['time_utc']}): {f['reason']}")
+    e = rep["eop"]
+    print(f"  deflection of the vertical xi {rep['xi_arcsec']:.2f}'' eta {rep['eta_arcsec']:.2f}''; refraction "
+          f"{rep['refraction_model']} ({rep['refraction_mode']}); Earth orientation {e['quality']} "
+          f"(UT1-UTC error {e['dut1_error_s']:.2g} s)")
     print(f"written: {rep['out']}")
 
 
@@ -122,6 +162,7 @@ def run_install(args) -> int:
     from shipstar.calibrate.installation import save_installation
     from shipstar.camera import load_camera
 
+    check_output_file(args.out, "--out")
     camera = load_camera(args.camera)
     frames, results = _process(args, camera)
     inst = _calibrate(args, camera, frames, results)

@@ -10,7 +10,15 @@ from __future__ import annotations
 import argparse
 import sys
 
-from shipstar.cli._common import emit_json, finite_float, fraction, latitude_deg
+from shipstar.cli._common import (
+    accuracy_warnings,
+    check_output_file,
+    emit_json,
+    finite_float,
+    fraction,
+    latitude_deg,
+    longitude_deg,
+)
 
 __all__ = ["register"]
 
@@ -28,18 +36,22 @@ example (20 frames of the night sky, taken on the ground):
       --lat-deg 28.2 --lon-deg 112.9 --pressure-hpa 1008 --temperature-c 12 \\
       --out seed002.cal.toml --json
 
-Frames: a directory of FITS images (DATE-OBS = mid-exposure UTC; site and weather from
+Frames: a directory of FITS images (mid-exposure UTC from DATE-AVG, else DATE-OBS, the
+start, plus EXPTIME/2, or DATE-OBS itself with --date-obs-is mid; site and weather from
 SITELAT/SITELONG/SITEELEV/PRESSURE/TEMPERAT when present), extracted and identified with
 the nominal camera, or of JSON star lists {"stars": [{"x", "y", "hip"}], "date_obs": ...}
 as 'shipstar solve --json' writes them (add --date-obs when they carry no time).
-Reference directions are apparent places at the observation time; with a site (flags or
-files) also per-star refraction.
+Reference directions are apparent places at the observation time with per-star
+refraction at the observing site.  Frames taken on the ground need that site (the flags,
+or the files'): without one they are refused, unless --in-space says they were taken
+above the atmosphere (simulated frames in space, SIMFRAME = 'icrs', pass as they are).
 
 Methods: sine / cosine = seed 002's observation equations on the sines / cosines of the
 interstar angles with its two-step iteration; joint = all parameters at once, robust
-(Huber), with a free attitude per frame.  --terms: all (seed 002's Weng model, default),
-auto (the terms the data support), none (f and principal point only), or a list such as
-k1,k2,p1,p2.
+(Huber), with a free attitude per frame.  --terms: auto (default: the Weng terms the data
+support, by a likelihood-ratio check), all (seed 002's full Weng model: unsupported terms
+fit noise and drag the principal point, a warning says so), none (f and principal point
+only), or a list such as k1,k2,p1,p2 (--no-term-check skips the check for a list).
 Writes the calibrated camera (TOML) and a plot of the residual vectors over the sensor.
 Exit codes: 0 calibrated; 1 the fit did not converge (nothing written); 2 bad input.
 """
@@ -76,21 +88,27 @@ def _add_intrinsics_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--camera", required=True, metavar="NAME|FILE", help="nominal camera: preset or TOML file")
     p.add_argument("--method", choices=("sine", "cosine", "joint"), default="joint",
                    help="sine / cosine: seed 002's two-step method; joint (default): all at once, robust")
-    p.add_argument("--terms", default="all", metavar="LIST",
-                   help="distortion terms: all (default), auto, none, or e.g. k1,k2,p1,p2,s1,s2")
+    p.add_argument("--terms", default="auto", metavar="LIST",
+                   help="distortion terms: auto (default: those the data support), all, none, or e.g. "
+                        "k1,k2,p1,p2,s1,s2")
     p.add_argument("--pairs", action="store_true",
                    help="joint: fit the interstar angles instead of star directions with per-frame attitudes")
     p.add_argument("--no-term-check", action="store_true",
-                   help="skip the check of which distortion terms the data support")
+                   help="skip the check of which distortion terms the data support (needs explicit --terms)")
     p.add_argument("--date-obs", metavar="ISO", help="UTC of frames that carry no time (ISO 8601)")
+    p.add_argument("--date-obs-is", choices=("start", "mid"), default="start",
+                   help="what FITS frames' DATE-OBS means: start of the exposure (FITS standard, default) or "
+                        "mid-exposure (cameras that write it so)")
     p.add_argument("--lat-deg", type=latitude_deg, help="observing site geodetic latitude (deg)")
-    p.add_argument("--lon-deg", type=finite_float, help="observing site longitude, east positive (deg)")
+    p.add_argument("--lon-deg", type=longitude_deg, help="observing site longitude, east positive (deg)")
     p.add_argument("--height-m", type=finite_float, default=0.0, help="site height above WGS84 (m, default 0)")
     p.add_argument("--pressure-hpa", type=finite_float, help="air pressure at the sensor (hPa)")
     p.add_argument("--temperature-c", type=finite_float, help="air temperature (C, default 10)")
     p.add_argument("--relative-humidity", type=fraction, help="0..1 (erfa model only, default 0)")
     p.add_argument("--refraction", choices=("erfa", "almanac", "none"),
                    help="refraction model for frames with a site (default: the file's, else erfa)")
+    p.add_argument("--in-space", action="store_true",
+                   help="the frames were taken above the atmosphere: no site, no refraction")
     p.add_argument("--out", required=True, metavar="FILE.toml", help="calibrated camera file to write")
     p.add_argument("--plot", metavar="FILE.png",
                    help="residual-vector plot (default: next to --out, <name>.residuals.png)")
@@ -133,6 +151,14 @@ def _calibrated_camera(cal, args):
     return cal.camera.replace(notes=notes)
 
 
+def _terms_text(cal) -> str:
+    """What the term check said, for the text output."""
+    if not cal.terms_checked:
+        return "distortion terms: not checked (--no-term-check)"
+    supported = ", ".join(cal.supported_distortion_terms) or "none supported by the data"
+    return f"distortion terms the data support: {supported}"
+
+
 def _print_table(cal, out_path, plot_path, skipped) -> None:
     print(f"camera {cal.camera.name!r}: method {cal.method}, {cal.n_frames} frames, {cal.n_stars} stars, "
           f"{cal.n_pairs} pairs")
@@ -140,8 +166,7 @@ def _print_table(cal, out_path, plot_path, skipped) -> None:
         print(f"  {name:12s} {cal.values[name]: .8g}  +- {cal.sigma[name]:.3g}")
     print(f"  interstar rms: before {cal.rms_before_rad:.3e} rad ({cal.rms_before_arcsec:.3f}\"), "
           f"after {cal.rms_after_rad:.3e} rad ({cal.rms_after_arcsec:.3f}\")")
-    print(f"  centroid noise {cal.centroid_sigma_px:.3f} px; supported distortion terms: "
-          f"{', '.join(cal.supported_distortion_terms) or '(not checked or none)'}")
+    print(f"  centroid noise {cal.centroid_sigma_px:.3f} px; {_terms_text(cal)}")
     for name, reason in skipped:
         print(f"  skipped {name}: {reason}")
     if out_path:
@@ -150,22 +175,51 @@ def _print_table(cal, out_path, plot_path, skipped) -> None:
         print(f"not calibrated: {cal.reason}")
 
 
+def _check_arguments(args) -> None:
+    """Conflicting flags and unwritable outputs, before any work."""
+    from shipstar.errors import ShipstarError
+
+    if args.plot and args.no_plot:
+        raise ShipstarError("give --plot or --no-plot, not both")
+    if args.no_term_check and args.terms.strip().lower() == "auto":
+        raise ShipstarError("--no-term-check needs explicit --terms (auto chooses the terms by that check)")
+    if args.in_space and (args.lat_deg is not None or args.pressure_hpa is not None
+                          or args.temperature_c is not None or args.refraction is not None):
+        raise ShipstarError("--in-space frames have no site, weather or refraction: drop --lat-deg/--lon-deg, "
+                            "--pressure-hpa, --temperature-c and --refraction")
+    check_output_file(args.out, "--out")
+    if not args.no_plot:
+        check_output_file(args.plot or _default_plot_path(args.out), "--plot")
+
+
+def _warn_unsupported(cal) -> None:
+    import warnings
+
+    from shipstar.errors import AccuracyWarning
+
+    if cal.solved and cal.unsupported_fitted_terms:
+        warnings.warn(f"fitted distortion terms the data do not support: {', '.join(cal.unsupported_fitted_terms)} "
+                      "(their values are fitted noise and move the principal point; --terms auto fits only the "
+                      "supported ones)", AccuracyWarning, stacklevel=1)
+
+
 def run_intrinsics(args) -> int:
     from shipstar.calibrate.intrinsics import calibrate_intrinsics, load_calibration_frames, plot_residuals
     from shipstar.camera import load_camera, save_camera
     from shipstar.errors import ShipstarError
 
+    _check_arguments(args)
     camera = load_camera(args.camera)
     site, weather = _site_and_weather(args)
-    if args.plot and args.no_plot:
-        raise ShipstarError("give --plot or --no-plot, not both")
     loaded = load_calibration_frames(args.frames, camera, utc=args.date_obs, site=site, weather=weather,
-                                     refraction_model=args.refraction)
+                                     refraction_model=args.refraction, date_obs_is=args.date_obs_is)
     if not loaded.frames:
         reasons = "; ".join(f"{n}: {r}" for n, r in loaded.skipped[:3])
         raise ShipstarError(f"no usable frame in {args.frames!r} ({reasons})")
     cal = calibrate_intrinsics(loaded.frames, camera, method=args.method, terms=args.terms,
-                               attitudes=not args.pairs, check_terms=not args.no_term_check)
+                               attitudes=not args.pairs, check_terms=not args.no_term_check,
+                               in_space=args.in_space)
+    _warn_unsupported(cal)
     out_path = plot_path = None
     if cal.solved:
         save_camera(_calibrated_camera(cal, args), args.out)
@@ -175,7 +229,8 @@ def run_intrinsics(args) -> int:
     if args.json:
         obj = cal.as_json_dict()
         obj.update(frames_dir=str(args.frames), source=loaded.kind, out=out_path, plot=plot_path,
-                   skipped=[{"file": n, "reason": r} for n, r in loaded.skipped])
+                   skipped=[{"file": n, "reason": r} for n, r in loaded.skipped], in_space=bool(args.in_space),
+                   warnings=accuracy_warnings(args))
         emit_json(obj)
     else:
         _print_table(cal, out_path, plot_path, loaded.skipped)

@@ -5,7 +5,17 @@ from __future__ import annotations
 import argparse
 import sys
 
-from shipstar.cli._common import emit_json, finite_float, fraction, latitude_deg
+from shipstar.cli._common import (
+    accuracy_warnings,
+    check_output_dir,
+    check_output_file,
+    deflection_arcsec,
+    emit_json,
+    finite_float,
+    fraction,
+    latitude_deg,
+    longitude_deg,
+)
 from shipstar.errors import ShipstarError
 
 __all__ = ["register", "run"]
@@ -16,20 +26,28 @@ examples:
       --install A1.install.toml A2.install.toml --track sea/track.csv --weather sea/weather.csv \\
       --out attitude.csv --plots plots/ --json
   shipstar measure --sensor A1=dock/A1 --install A1.install.toml --lat-deg 31.9 --lon-deg 120.3 \\
-      --pressure-hpa 1021.7 --temperature-c 11.1 --out a1.csv
+      --xi-arcsec 4.2 --eta-arcsec -7.5 --pressure-hpa 1021.7 --temperature-c 11.1 --out a1.csv
 
-Each --sensor NAME=DIR gives one sensor's FITS frames (DATE-OBS = mid-exposure UTC), in
-time order by file name; each sensor needs an installation file (shipstar calibrate
-install) naming it.  The camera is the one named in the installation file (a preset),
-unless --camera NAME=FILE gives it.  The ship's position: --lat-deg/--lon-deg (fixed) or
---track CSV (time_utc, lat_deg, lon_deg[, height_m]); the weather: --pressure-hpa and
---temperature-c (fixed) or --weather CSV (time_utc, pressure_hpa, temperature_c[,
-relative_humidity]); docs/file-formats.md.
+Each --sensor NAME=DIR gives one sensor's FITS frames, in time order by file name; the
+frame time is mid-exposure UTC: DATE-AVG, else DATE-OBS (the start, FITS standard) plus
+EXPTIME/2 (--date-obs-is mid: DATE-OBS is already mid-exposure).  Each sensor needs an
+installation file (shipstar calibrate install) naming it.  The camera is the one named
+in the installation file (a preset), unless --camera NAME=FILE gives it.
+
+The ship's position: --lat-deg/--lon-deg (fixed, with the deflection of the vertical
+--xi-arcsec/--eta-arcsec) or --track CSV (time_utc, lat_deg, lon_deg[, height_m][,
+xi_arcsec, eta_arcsec]); a levelled ship follows the plumb line, and a deflection of the
+vertical left out comes back as pitch and roll bias of its size.  The weather:
+--pressure-hpa and --temperature-c (fixed) or --weather CSV (time_utc, pressure_hpa,
+temperature_c[, relative_humidity]); docs/file-formats.md.
 
 Output CSV: one row per sensor frame (method single) and, with two or more sensors, per
 epoch of the reference sensor for the seed's fusion rule and the joint solution.
 Failed frames are rows with solved=0 and their reason.  --truth CSV (time_utc,
 heading_deg, pitch_deg, roll_deg; simulated sessions) adds error RMS to the summary.
+The summary gives the Earth orientation quality (measured / predicted / extrapolated,
+UT1-UTC error) and the accuracy warnings, which are also printed one per line on stderr
+(e.g. a refraction model other than the one the installation was calibrated with).
 Exit codes: 0 every frame solved; 1 written, but some frames failed; 2 bad input
 (including a sensor none of whose frames solved).
 """
@@ -63,9 +81,13 @@ def register(subparsers) -> argparse.ArgumentParser:
                    help="camera preset or TOML file of a sensor (default: the installation's camera preset)")
     g = p.add_argument_group("ship position (fixed, or a track)")
     g.add_argument("--lat-deg", type=latitude_deg, help="geodetic latitude (deg)")
-    g.add_argument("--lon-deg", type=finite_float, help="longitude, east positive (deg)")
+    g.add_argument("--lon-deg", type=longitude_deg, help="longitude, east positive (deg, -180..360)")
     g.add_argument("--height-m", type=finite_float, default=0.0, help="height above WGS84 (m)")
-    g.add_argument("--track", metavar="CSV", help="time_utc, lat_deg, lon_deg[, height_m]")
+    g.add_argument("--xi-arcsec", type=deflection_arcsec, default=None,
+                   help="deflection of the vertical, north-south (arcsec, default 0; with --lat-deg)")
+    g.add_argument("--eta-arcsec", type=deflection_arcsec, default=None,
+                   help="deflection of the vertical, east-west (arcsec, default 0; with --lat-deg)")
+    g.add_argument("--track", metavar="CSV", help="time_utc, lat_deg, lon_deg[, height_m][, xi_arcsec, eta_arcsec]")
     w = p.add_argument_group("weather (fixed, or a table)")
     w.add_argument("--pressure-hpa", type=finite_float, help="air pressure at the sensors (hPa)")
     w.add_argument("--temperature-c", type=finite_float, help="air temperature (C)")
@@ -76,6 +98,9 @@ def register(subparsers) -> argparse.ArgumentParser:
                    help="refraction model (default erfa; almanac = the seeds')")
     o.add_argument("--refraction-mode", choices=("per-star", "boresight"), default="per-star",
                    help="per-star (default) or the seed's boresight-only refraction")
+    o.add_argument("--date-obs-is", choices=("start", "mid"), default="start",
+                   help="what the frames' DATE-OBS means: start of the exposure (FITS standard, default) or "
+                        "mid-exposure (cameras that write it so)")
     o.add_argument("--reference", metavar="NAME", help="sensor whose frame times are the epochs (default first)")
     o.add_argument("--max-pair-offset-s", type=_non_negative, default=0.06,
                    help="largest time offset of paired frames (s, default 0.06)")
@@ -96,12 +121,15 @@ def _site_and_weather(args):
 
     if args.track and (args.lat_deg is not None or args.lon_deg is not None):
         raise ShipstarError("give either --track or --lat-deg/--lon-deg, not both")
+    if args.track and (args.xi_arcsec is not None or args.eta_arcsec is not None):
+        raise ShipstarError("with --track the deflection of the vertical goes into its xi_arcsec and eta_arcsec "
+                            "columns, not --xi-arcsec/--eta-arcsec")
     if args.track:
         track = Track.read_csv(args.track)
     elif args.lat_deg is None or args.lon_deg is None:
         raise ShipstarError("give the ship's position: --lat-deg and --lon-deg, or --track CSV")
     else:
-        track = Track.fixed(args.lat_deg, args.lon_deg, args.height_m)
+        track = Track.fixed(args.lat_deg, args.lon_deg, args.height_m, args.xi_arcsec or 0.0, args.eta_arcsec or 0.0)
     fixed = [args.pressure_hpa, args.temperature_c]
     if args.weather and any(v is not None for v in fixed):
         raise ShipstarError("give either --weather or --pressure-hpa/--temperature-c, not both")
@@ -148,10 +176,37 @@ def _configs(args):
         inst = installs[name]
         camera = load_camera(cams.get(name, inst.camera))
         configs.append(SensorConfig(name, camera, inst))
-        fr = scan_frames(directory)
+        fr = scan_frames(directory, date_obs_is=args.date_obs_is)
         check_sensor_name(fr, name, camera.name, directory)
         frames.append(fr)
     return configs, frames
+
+
+def _refraction_mismatch(installs: dict, model: str, mode: str) -> list:
+    """One-line messages for sensors calibrated in dock with another refraction model or
+    mode: the difference enters the installation elevation and comes back as pitch/roll."""
+    import math
+
+    from shipstar.sky.refraction import Weather, refraction_rad
+    from shipstar.units import RAD2ASEC, RAD2DEG
+
+    out = []
+    for name, inst in installs.items():
+        d = inst.dock
+        if d is None:
+            continue
+        if d.refraction_model and d.refraction_model != model:
+            el = min(max(abs(inst.el_rad), math.radians(10.0)), math.radians(90.0))
+            ok = math.isfinite(d.pressure_hpa) and math.isfinite(d.temperature_c)
+            w = Weather(d.pressure_hpa, d.temperature_c) if ok else Weather()
+            diff = abs(float(refraction_rad(el, w, d.refraction_model) - refraction_rad(el, w, model))) * RAD2ASEC
+            out.append(f"sensor {name} was calibrated in dock with refraction model {d.refraction_model!r} but "
+                       f"this run uses {model!r}: they differ by {diff:.2f}'' at its {el * RAD2DEG:.0f} deg "
+                       f"elevation, which comes back as pitch/roll bias (use --refraction {d.refraction_model})")
+        if d.refraction_mode and d.refraction_mode != mode:
+            out.append(f"sensor {name} was calibrated in dock with {d.refraction_mode} refraction but this run "
+                       f"uses {mode} (use --refraction-mode {d.refraction_mode})")
+    return out
 
 
 def _check_sensors_solved(result) -> None:
@@ -176,10 +231,32 @@ def _print_text(summary: dict, out: str) -> None:
         sig = "/".join(_f2(v) for v in b["median_sigma_arcsec"])
         rms = "/".join(_f2(v) for v in b.get("rms_arcsec", [None] * 3))
         print(f"{m:15s} {b['n_solved']:4d}/{b['n']:<4d} {sig:>28s}    {rms:>20s}")
+    e = summary["eop"]
+    print(f"Earth orientation: {e['quality']} (UT1-UTC error {e['dut1_error_s']:.2g} s, polar motion "
+          f"{e['polar_motion_error_arcsec']:.2g}'')")
     print(f"written: {out}")
 
 
+def _check_outputs(args) -> None:
+    """Every output path, before any processing."""
+    check_output_file(args.out, "--out")
+    if args.plots:
+        check_output_dir(args.plots, "--plots", files=("attitude.png", "residuals.png"))
+
+
+def _eop(frames) -> dict:
+    """Earth orientation quality over all frames (JSON summary)."""
+    from shipstar.pipeline import eop_quality
+
+    times = [(f.utc_jd1, f.utc_jd2) for fr in frames for f in fr]
+    jd1, jd2 = zip(*times)
+    return eop_quality(jd1, jd2).as_dict()
+
+
 def run(args) -> int:
+    import warnings
+
+    from shipstar.errors import AccuracyWarning
     from shipstar.pipeline import (
         PipelineOptions,
         TruthTable,
@@ -190,9 +267,13 @@ def run(args) -> int:
     )
     from shipstar.pipeline._progress import ProgressBar
 
+    _check_outputs(args)
     track, weather = _site_and_weather(args)
     truth = TruthTable.read_csv(args.truth) if args.truth else None
     configs, frames = _configs(args)
+    for message in _refraction_mismatch({c.name: c.installation for c in configs}, args.refraction,
+                                        args.refraction_mode):
+        warnings.warn(message, AccuracyWarning, stacklevel=1)
     options = PipelineOptions(refraction_model=args.refraction, refraction=args.refraction_mode,
                               max_pair_offset_s=args.max_pair_offset_s,
                               compensate_motion=not args.no_motion_compensation)
@@ -205,8 +286,10 @@ def run(args) -> int:
     write_attitude_csv(result, args.out)
     summary = session_summary(result, truth)
     summary["out"] = str(args.out)
+    summary["eop"] = _eop(frames)
     if args.plots:
         summary["plots"] = [str(p) for p in plot_session(result, args.plots, truth)]
+    summary["warnings"] = accuracy_warnings(args)
     if args.json:
         emit_json(summary)
     else:

@@ -64,7 +64,7 @@ class Mesh:
 
 
 def _block_samples(image, block_px, step):
-    """(n_by, n_bx, k) samples: every ``step``-th pixel of each block (last blocks padded)."""
+    """(n_by, n_bx, k) float64 samples: every ``step``-th pixel of each block (last blocks padded)."""
     sub = image[step // 2::step, step // 2::step]
     b = block_px // step
     n_by = -(-sub.shape[0] // b)
@@ -73,7 +73,9 @@ def _block_samples(image, block_px, step):
     if pad[0][1] or pad[1][1]:
         sub = np.pad(sub, pad, mode="symmetric")
     blocks = sub.reshape(n_by, b, n_bx, b).swapaxes(1, 2).reshape(n_by, n_bx, b * b)
-    return blocks.astype(np.float32)
+    # float64: a float32 copy overflows to inf above 3.4e38, and the squared deviations of
+    # values above 1.8e19 overflow too (RuntimeWarnings, inf in the block statistics)
+    return blocks.astype(np.float64)
 
 
 def _sorted_median(samples):

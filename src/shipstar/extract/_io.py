@@ -2,6 +2,8 @@
 
 Integer data keep their dtype (an 8-bit JPEG stays ``uint8``, a 12-bit frame in a
 16-bit PNG or FITS stays ``uint16``) so that the saturation level can be inferred.
+FITS files are read by :func:`shipstar._fitsio.read_fits_image`, shipstar's one FITS
+reader (rows flipped for ``ROWORDER = 'BOTTOM-UP'``, so row 0 is always the top).
 Colour images become luminance with ITU-R 601 weights (Pillow's ``convert("L")``).
 """
 
@@ -45,21 +47,11 @@ def _sniff(path: Path) -> str:
 
 
 def _read_fits(path: Path) -> np.ndarray:
-    import warnings
+    """The image of a FITS file by shipstar's one FITS reader (``shipstar._fitsio``: first
+    HDU with 2-D data, ``ROWORDER`` applied, one-line errors for corrupt files)."""
+    from shipstar._fitsio import read_fits_image
 
-    from astropy.io import fits
-
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")             # header-verification chatter; errors still raise
-            with fits.open(path, memmap=False) as hdul:
-                for hdu in hdul:
-                    data = getattr(hdu, "data", None)
-                    if isinstance(data, np.ndarray) and data.ndim >= 2 and data.dtype.fields is None:
-                        return np.array(data)
-    except (OSError, ValueError, TypeError, IndexError, KeyError, EOFError) as exc:
-        raise ShipstarError(f"corrupt or unreadable FITS file {path}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
-    raise ShipstarError(f"FITS file {path} has no 2-D image HDU")
+    return read_fits_image(path)
 
 
 def _read_pillow(path: Path, kind: str) -> np.ndarray:
@@ -94,7 +86,8 @@ def read_image(path) -> np.ndarray:
     Parameters
     ----------
     path : str or os.PathLike
-        A FITS (first HDU with 2-D data; a 3-D cube only if it has one plane), PNG, TIFF,
+        A FITS (first HDU with 2-D data, top row first per ``ROWORDER``; a 3-D cube only
+        if it has one plane), PNG, TIFF,
         JPEG or ``.npy`` file. The format is recognised from the file's first bytes.
 
     Returns

@@ -10,6 +10,7 @@ radial term is fitted too: ``t_true = s t (1 + k1 |t|^2)``.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -93,14 +94,14 @@ class StarField:
     @property
     def half_diagonal_tan(self) -> float:
         """Largest tangent-plane distance from the boresight to an image corner."""
-        y0, y1, z0, z1 = self.bounds
-        return float(np.hypot(max(abs(y0), abs(y1)), max(abs(z0), abs(z1))))
+        y0, y1, z0, z1 = self.bounds.tolist()
+        return math.hypot(max(abs(y0), abs(y1)), max(abs(z0), abs(z1)))
 
     @property
     def area_tan2(self) -> float:
         """Area of the image rectangle in the tangent plane."""
-        y0, y1, z0, z1 = self.bounds
-        return float((y1 - y0) * (z1 - z0))
+        y0, y1, z0, z1 = self.bounds.tolist()
+        return (y1 - y0) * (z1 - z0)
 
 
 _NO_ROWS = np.empty(0, dtype=np.intp)
@@ -119,14 +120,14 @@ def _check_rows(arr, width: int, what: str) -> np.ndarray:
 
 def _check_error(value: float, what: str) -> float:
     value = float(value)
-    if not np.isfinite(value) or value <= 0.0:
+    if not math.isfinite(value) or value <= 0.0:
         raise ShipstarError(f"{what} must be a positive finite number, got {value}")
     return value
 
 
 def _check_tolerance(value: float) -> float:
     value = float(value)
-    if not np.isfinite(value) or not 0.0 <= value <= 0.5:
+    if not math.isfinite(value) or not 0.0 <= value <= 0.5:
         raise ShipstarError(f"focal_tolerance must be within 0 .. 0.5, got {value}")
     return value
 
@@ -177,10 +178,10 @@ def field_from_camera(xy_px, camera, *, error_px: float, focal_tolerance: float 
     """Field from pixel centroids ``(N, 2)`` and a calibrated :class:`~shipstar.camera.Camera`."""
     xy = _check_rows(xy_px, 2, "xy_px")
     error_px = _check_error(error_px, "centroid_error_px")
-    if np.isfinite(xy).all():
+    if math.isfinite(xy.sum()):              # one reduction: every value finite
         u = camera.unproject(xy)
         t = u[:, 1:] / u[:, :1]
-        bad = _NO_ROWS if np.isfinite(t).all() else np.flatnonzero(~np.all(np.isfinite(t), axis=1))
+        bad = _NO_ROWS if math.isfinite(t.sum()) else np.flatnonzero(~np.all(np.isfinite(t), axis=1))
     else:
         finite = np.all(np.isfinite(xy), axis=1)
         u = np.full((xy.shape[0], 3), np.nan)

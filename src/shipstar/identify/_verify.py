@@ -11,17 +11,94 @@ of the observed ``k`` matches.
 
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 
-from shipstar.attitude import quest
+from shipstar.attitude._quest import _quest_single
+from shipstar.identify import _skygrid
 from shipstar.units import RAD2ASEC as _RAD2ASEC
 
 #: fine match radius in units of the per-axis centroid error bound delta (a measured
 #: star is within sqrt(2) delta of its true place; the rest is attitude-fit error)
 FINE_GATE = 1.5
 
-__all__ = ["FINE_GATE", "GATE_FRACTIONS", "image_box", "gate_counts", "chance_tail", "min_chance", "Prediction", "predict", "reproject", "associate", "match_stars", "refine",
-           "chance_probability", "rms_arcsec", "rms_of"]
+__all__ = ["FINE_GATE", "GATE_FRACTIONS", "image_box", "gate_counts", "chance_tail", "min_chance",
+           "Prediction", "predict", "reproject", "associate", "match_stars", "refine",
+           "chance_probability", "rms_arcsec", "rms_of", "unit_f64", "cell_stars", "wahba"]
+
+
+# ------------------------------------------------------------------------------------
+# Per-database caches (weak: they go with the database)
+# ------------------------------------------------------------------------------------
+
+_U64: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_CELLS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+#: sky-grid cells whose stars are kept per database (a tracked sensor stays in one cell
+#: for many frames; lost-in-space visits random cells and only needs the last few)
+_MAX_CELLS = 16
+#: ``[database, u64, cells]`` of the database used last (a weak reference would cost
+#: more than it saves; the entry is replaced when another database comes)
+_LAST: list = [None, None, None]
+
+
+def _caches(db):
+    """``(u64, cells)`` of a database: its float64 unit vectors and its cell cache (the
+    last database used is kept at hand: a session uses one or two)."""
+    last = _LAST
+    if last[0] is db:
+        return last[1], last[2]
+    u = _U64.get(db)
+    if u is None:
+        u = db.u_icrs.astype(np.float64)
+        u /= np.sqrt(np.einsum("ij,ij->i", u, u))[:, None]
+        u.setflags(write=False)
+        _U64[db] = u
+    cells = _CELLS.get(db)
+    if cells is None:
+        cells = _CELLS[db] = {}
+    _LAST[:] = [db, u, cells]
+    return u, cells
+
+
+def unit_f64(db) -> np.ndarray:
+    """The database's star vectors ``(S, 3)`` as float64 unit vectors (made once per
+    database: the stored float32 rows are normalised to float32 precision only)."""
+    return _caches(db)[0]
+
+
+def cell_stars(db, direction):
+    """``(rows (M,), u (M, 3) float64)``: the stars of the sky-grid cell holding the unit
+    vector ``direction`` (all stars within ``db.query_radius_rad`` of it, brightest first),
+    the same rows as ``db.near(direction)``; cached per database and cell (read only)."""
+    u64, cells = _caches(db)
+    c = _skygrid.cell_of_one(direction, db.grid_n)
+    hit = cells.get(c)
+    if hit is None:
+        rows = db.cell_index[db.cell_start[c]:db.cell_start[c + 1]].astype(np.intp)
+        hit = (rows, u64[rows])
+        if len(cells) >= _MAX_CELLS:
+            del cells[next(iter(cells))]
+        cells[c] = hit
+    return hit
+
+
+def wahba(w_body, v_ref, C_near=None) -> np.ndarray:
+    """``C_ref_from_body`` (3, 3) for matched *unit* vectors ``(k, 3)``, equal weights.
+
+    The QUEST-Newton core of :func:`shipstar.attitude.quest` on the attitude profile
+    matrix, without its input preparation (shape checks, normalisation, weights): the
+    identification's vectors are unit vectors already, and this runs several times per
+    frame.  With ``C_near`` (3, 3), a rotation close to the answer (a tracking prior),
+    the problem is solved for the small rotation ``C_near^T C``: QUEST then never needs
+    its sequential rotations (which it takes when the attitude is more than ~145 deg
+    from the identity) and is ~2x faster.
+    """
+    B = v_ref.T @ w_body
+    B *= 1.0 / w_body.shape[0]
+    if C_near is None:
+        return _quest_single(B.ravel().tolist())
+    return C_near @ _quest_single((C_near.T @ B).ravel().tolist())
 
 
 class Prediction:
@@ -45,8 +122,7 @@ def predict(db, C_icrs_from_sensor, box, margin_tan: float) -> Prediction:
     ``box = (centre, half_size)`` is the image rectangle in the tangent plane at the
     hypothesis' focal scale (:func:`image_box`); ``n_in`` counts the stars inside it.
     """
-    rows = db.near(C_icrs_from_sensor[:, 0])
-    u = db.u_icrs[rows]
+    rows, u = cell_stars(db, C_icrs_from_sensor[:, 0])
     w = u @ C_icrs_from_sensor                     # in front: the query radius is < 81 deg
     t = w[:, 1:] / w[:, :1]
     centre, half = box
@@ -127,8 +203,8 @@ def refine(field, db, img, cat, scale: float, fit_scale: bool, k1: float = 0.0,
     (``k1`` only with ``fit_k1`` and at least 6 stars, and kept only if it bends the
     image corner by less than 5 %); two rounds converge far below the centroid noise.
     """
-    v = db.u_icrs[cat]
-    C = quest(field.unit(scale, rows=img, k1=k1), v)
+    v = unit_f64(db)[cat]
+    C = wahba(field.unit(scale, rows=img, k1=k1), v)
     if not fit_scale or img.size < 3:
         return C, scale, k1
     t = field.t[img]
@@ -149,7 +225,7 @@ def refine(field, db, img, cat, scale: float, fit_scale: bool, k1: float = 0.0,
         else:
             g = t.ravel() * np.repeat(1.0 + k1 * r2, 2)
             scale = float(tc @ g / (g @ g))
-        C = quest(field.unit(scale, rows=img, k1=k1), v)
+        C = wahba(field.unit(scale, rows=img, k1=k1), v)
     return C, scale, k1
 
 
@@ -211,4 +287,4 @@ def rms_of(w_sensor, v_ref, C) -> float:
 
 def rms_arcsec(field, db, img, cat, C, scale, k1=0.0) -> float:
     """RMS angle (arcsec) between fitted measured directions and their catalog stars."""
-    return rms_of(field.unit(scale, rows=img, k1=k1), db.u_icrs[cat], C)
+    return rms_of(field.unit(scale, rows=img, k1=k1), unit_f64(db)[cat], C)

@@ -6,7 +6,8 @@ Public API::
     scan_frames(directory) -> [Frame]                               # FITS frames with DATE-OBS
     SensorConfig(name, camera, installation=None)
     PipelineOptions(refraction_model="erfa", refraction="per-star", ...)
-    Track.fixed(lat_deg, lon_deg) / Track.read_csv(path)            # ship position
+    Track.fixed(lat_deg, lon_deg, height_m, xi_arcsec, eta_arcsec) / Track.read_csv(path)   # ship position
+    eop_quality(utc_jd1, utc_jd2) -> EopQuality                     # Earth orientation over the frames
     WeatherTable.constant(p, t) / WeatherTable.read_csv(path)
     process_sensor(config, frames, track, weather, options) -> (FrameResult, ...)
     process_session(configs, frames_per_sensor, track, weather, options) -> SessionResult
@@ -26,11 +27,12 @@ from shipstar.pipeline._sensor import FrameResult
 from shipstar.pipeline._session import SessionResult, process_sensor, process_session
 from shipstar.pipeline._stars import StarLookup
 from shipstar.pipeline._stats import attitude_errors_arcsec, method_series, rms_arcsec, session_summary
-from shipstar.pipeline._tables import Track, TruthTable, WeatherTable
+from shipstar.pipeline._tables import EopQuality, Track, TruthTable, WeatherTable, eop_quality
 
 __all__ = [
     "Frame", "scan_frames", "read_fits_frame",
     "SensorConfig", "PipelineOptions", "Track", "WeatherTable", "TruthTable", "StarLookup",
+    "EopQuality", "eop_quality",
     "FrameResult", "Epoch", "SessionResult", "process_sensor", "process_session", "sensor_roles",
     "DeckRate", "estimate_deck_rate",
     "session_summary", "attitude_errors_arcsec", "rms_arcsec", "method_series",

@@ -1,18 +1,25 @@
-"""Pipeline inputs: one sensor frame (:class:`Frame`) and FITS frame directories (:func:`scan_frames`)."""
+"""Pipeline inputs: one sensor frame (:class:`Frame`) and FITS frame directories (:func:`scan_frames`).
+
+FITS files are read by :mod:`shipstar._fitsio`: a frame's time is its mid-exposure UTC
+(``DATE-AVG``, else ``DATE-BEG``/``DATE-OBS`` -- the exposure *start* in the FITS
+standard -- plus half the exposure; ``date_obs_is="mid"`` for cameras that write the
+mid-exposure time into ``DATE-OBS``), and images are returned top row first
+(``ROWORDER``).  Each :class:`Frame` records how its time was found (``time_source``).
+"""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from shipstar._fitsio import FITS_SUFFIXES
 from shipstar.errors import ShipstarError
 from shipstar.units import DAY_S
 
-__all__ = ["Frame", "scan_frames", "read_fits_frame", "check_sensor_name", "FITS_SUFFIXES"]
-
-FITS_SUFFIXES = (".fits", ".fit", ".fts")
+__all__ = ["Frame", "scan_frames", "read_fits_frame", "check_sensor_name", "time_sources", "FITS_SUFFIXES"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -37,6 +44,11 @@ class Frame:
         Known identities of ``xy_px`` (-1 for none).
     sensor : str
         Sensor named in the file (FITS ``SENSOR`` or ``INSTRUME``), '' if none.
+    time_source : str
+        How the time was found in the file (e.g. ``"DATE-AVG"``, ``"DATE-OBS+EXPTIME/2"``,
+        ``"DATE-OBS(mid)"``); '' for frames not read from a file.
+    exposure_s : float
+        Exposure time from the file (NaN when unknown).
     """
 
     utc_jd1: float
@@ -47,6 +59,8 @@ class Frame:
     xy_px: np.ndarray | None = None
     hip: np.ndarray | None = None
     sensor: str = ""
+    time_source: str = ""
+    exposure_s: float = math.nan
 
     def __post_init__(self):
         if self.path is None and self.image is None and self.xy_px is None:
@@ -71,118 +85,29 @@ class Frame:
     def utc_iso(self) -> str:
         from shipstar.sky.time import iso_from_utc_jd
 
-        return iso_from_utc_jd(self.utc_jd1, self.utc_jd2, 3)
+        return iso_from_utc_jd(self.utc_jd1, self.utc_jd2, 6)
 
 
-def _fits_error(path: Path, exc: Exception) -> ShipstarError:
-    text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-    return ShipstarError(f"corrupt or unreadable FITS file {path}: {text}")
+def read_fits_frame(path, *, date_obs_is: str = "start") -> tuple[np.ndarray, tuple[float, float]]:
+    """``(image (H, W), (utc_jd1, utc_jd2))`` of a FITS frame: its pixels (top row first)
+    and its mid-exposure UTC (:mod:`shipstar._fitsio`: DATE-AVG, else DATE-BEG / DATE-OBS
+    plus half the exposure).
 
-
-def _image_hdu(hdul, path: Path):
-    for hdu in hdul:
-        data = getattr(hdu, "data", None)
-        if isinstance(data, np.ndarray) and data.ndim == 2 and data.dtype.fields is None:
-            return hdu
-    raise ShipstarError(f"FITS file {path} has no 2-D image")
-
-
-def _date_obs(header, path: Path) -> tuple[float, float]:
-    from shipstar.sky.time import utc_jd_from_iso
-
-    text = header.get("DATE-OBS")
-    if text is None:
-        raise ShipstarError(f"frame {path} has no DATE-OBS (mid-exposure UTC) in its FITS header")
-    timesys = str(header.get("TIMESYS", "UTC")).strip().upper()
-    if timesys != "UTC":
-        raise ShipstarError(f"frame {path}: TIMESYS is {timesys}, only UTC is supported")
-    try:
-        return utc_jd_from_iso(str(text))
-    except ShipstarError as exc:
-        raise ShipstarError(f"frame {path}: DATE-OBS: {exc}") from None
-
-
-_CARD = 80
-_BLOCK = 2880
-_MAX_HEADER_BLOCKS = 36
-
-
-def _card_value(card: str) -> str:
-    """The value of a simple FITS card (``KEY     = 'text' / comment`` or a number)."""
-    v = card[10:].strip()
-    if v.startswith("'"):
-        end = v.find("'", 1)
-        while end != -1 and v[end + 1:end + 2] == "'":       # '' is an escaped quote
-            end = v.find("'", end + 2)
-        return v[1:end].replace("''", "'").rstrip() if end != -1 else v[1:]
-    return v.split("/", 1)[0].strip()
-
-
-def _quick_primary_header(path: Path) -> dict | None:
-    """DATE-OBS, TIMESYS, SENSOR, INSTRUME of a primary 2-D image HDU read straight from the
-    80-character header cards (the FITS standard's fixed format), ~50x faster than
-    astropy's full header parse; None when the primary HDU is not a 2-D image (then the
-    caller falls back to astropy, which also handles extensions and compression)."""
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(_BLOCK * _MAX_HEADER_BLOCKS)
-    except OSError:
-        return None
-    if not head.startswith(b"SIMPLE  ="):
-        return None
-    cards = {}
-    for i in range(0, len(head) - _CARD + 1, _CARD):
-        card = head[i:i + _CARD].decode("ascii", "replace")
-        key = card[:8].strip()
-        if key == "END":
-            break
-        if card[8:10] == "= " and key in ("NAXIS", "DATE-OBS", "TIMESYS", "SENSOR", "INSTRUME"):
-            cards[key] = _card_value(card)
-    else:
-        return None
-    return cards if cards.get("NAXIS") == "2" else None
-
-
-def _read_header(path: Path):
-    """Header of the first 2-D image HDU, without reading any data."""
-    quick = _quick_primary_header(path)
-    if quick is not None:
-        return quick
-    from astropy.io import fits
-
-    try:
-        with fits.open(path, memmap=False, lazy_load_hdus=True) as hdul:
-            for hdu in hdul:
-                if getattr(hdu, "is_image", False) and hdu.header.get("NAXIS", 0) == 2:
-                    return hdu.header
-        raise ShipstarError(f"FITS file {path} has no 2-D image")
-    except ShipstarError:
-        raise
-    except (OSError, ValueError, TypeError, IndexError, KeyError, EOFError) as exc:
-        raise _fits_error(path, exc) from None
-
-
-def read_fits_frame(path) -> tuple[np.ndarray, tuple[float, float]]:
-    """``(image (H, W), (utc_jd1, utc_jd2))`` of a FITS frame with DATE-OBS.
+    Parameters
+    ----------
+    path : str or Path
+    date_obs_is : {"start", "mid"}
+        What the files' DATE-OBS means; the FITS standard (and the default) is the start.
 
     Raises
     ------
     ShipstarError
-        Missing or corrupt file, no 2-D image, no or bad DATE-OBS.
+        Missing, truncated or corrupt file, no 2-D image, no usable time.
     """
-    from astropy.io import fits
+    from shipstar._fitsio import read_fits
 
-    path = Path(path)
-    try:
-        with fits.open(path, memmap=False) as hdul:
-            hdu = _image_hdu(hdul, path)
-            return np.asarray(hdu.data), _date_obs(hdu.header, path)
-    except FileNotFoundError:
-        raise ShipstarError(f"no such frame: {path}") from None
-    except ShipstarError:
-        raise
-    except (OSError, ValueError, TypeError, IndexError, KeyError, EOFError) as exc:
-        raise _fits_error(path, exc) from None
+    image, info = read_fits(path, date_obs_is=date_obs_is)
+    return image, info.mid_utc_jd()
 
 
 def check_sensor_name(frames, name: str, camera_name: str, where) -> None:
@@ -194,25 +119,33 @@ def check_sensor_name(frames, name: str, camera_name: str, where) -> None:
                             f"not {name!r}")
 
 
-def scan_frames(directory) -> list[Frame]:
-    """The FITS frames of a directory, in file-name order, with their DATE-OBS times.
+def scan_frames(directory, *, date_obs_is: str = "start") -> list[Frame]:
+    """The FITS frames of a directory, in file-name order, with their mid-exposure times.
 
     Parameters
     ----------
     directory : str or Path
         Holds ``*.fits`` / ``*.fit`` / ``*.fts`` frames of ONE sensor.
+    date_obs_is : {"start", "mid"}
+        What the files' DATE-OBS means when they have no DATE-AVG or DATE-BEG: the start
+        of the exposure (the FITS standard, the default) or its middle.
 
     Returns
     -------
     list of Frame
-        ``path`` set, image not yet read.
+        ``path``, ``time_source`` and ``exposure_s`` set, image not yet read.
 
     Raises
     ------
     ShipstarError
-        Not a directory, no FITS files, a frame without DATE-OBS, or frames whose times
-        do not increase strictly in file-name order (both files named).
+        Not a directory, no FITS files, a frame without a usable time (no DATE-OBS, or a
+        start without EXPTIME / DATE-END), or frames whose times do not increase strictly
+        in file-name order (both files named).
     """
+    from shipstar._fitsio import DATE_OBS_CHOICES, read_fits_header
+
+    if date_obs_is not in DATE_OBS_CHOICES:
+        raise ShipstarError(f"date_obs_is must be one of {', '.join(DATE_OBS_CHOICES)}, got {date_obs_is!r}")
     d = Path(directory)
     if not d.is_dir():
         raise ShipstarError(f"frames directory {d} does not exist or is not a directory")
@@ -221,12 +154,22 @@ def scan_frames(directory) -> list[Frame]:
         raise ShipstarError(f"no FITS frames (*.fits) in {d}")
     frames = []
     for p in paths:
-        header = _read_header(p)
-        jd1, jd2 = _date_obs(header, p)
-        sensor = str(header.get("SENSOR", header.get("INSTRUME", ""))).strip()
-        frames.append(Frame(jd1, jd2, p.name, path=p, sensor=sensor))
+        info = read_fits_header(p, date_obs_is=date_obs_is)
+        jd1, jd2 = info.mid_utc_jd()
+        frames.append(Frame(jd1, jd2, p.name, path=p, sensor=info.sensor_name, time_source=info.time_source,
+                            exposure_s=info.exposure_s))
     for a, b in zip(frames, frames[1:]):
         if b.seconds_since(a.utc_jd1, a.utc_jd2) <= 0.0:
-            raise ShipstarError(f"frames out of time order: {b.label} (DATE-OBS {b.utc_iso}) is not later than "
+            raise ShipstarError(f"frames out of time order: {b.label} (mid-exposure {b.utc_iso}) is not later than "
                                 f"{a.label} ({a.utc_iso})")
     return frames
+
+
+def time_sources(frames) -> dict:
+    """``{time_source: number of frames}`` of a list of frames (for reports: how the time
+    tags were found, e.g. ``{"DATE-OBS+EXPTIME/2": 160}``)."""
+    out: dict = {}
+    for f in frames:
+        key = f.time_source or "given"
+        out[key] = out.get(key, 0) + 1
+    return out

@@ -1,5 +1,6 @@
 """Time tables of the session: the ship's track (:class:`Track`), the weather
-(:class:`WeatherTable`) and, for simulated sessions, the true attitude (:class:`TruthTable`).
+(:class:`WeatherTable`) and, for simulated sessions, the true attitude (:class:`TruthTable`);
+and the quality of the Earth orientation over a session's frame times (:func:`eop_quality`).
 
 All are CSV files with a header row and a ``time_utc`` column (ISO 8601 UTC), see
 docs/file-formats.md.  Track and weather are interpolated linearly in time; a frame
@@ -18,7 +19,7 @@ import numpy as np
 from shipstar.errors import ShipstarError
 from shipstar.units import DAY_S, DEG2RAD
 
-__all__ = ["Track", "WeatherTable", "TruthTable", "read_csv_table"]
+__all__ = ["Track", "WeatherTable", "TruthTable", "read_csv_table", "EopQuality", "eop_quality"]
 
 #: Frames may lie this far outside a table's time range (s): clock rounding.
 _EDGE_S = 1e-3
@@ -115,50 +116,74 @@ def _interp(values: np.ndarray, i: int, f: float) -> float:
 
 @dataclass(frozen=True, eq=False)
 class Track(_TimeTable):
-    """The ship's geodetic position over time (one row: a fixed site, e.g. in dock).
+    """The ship's geodetic position over time (one row: a fixed site, e.g. in dock), with
+    the deflection of the vertical there.
 
-    Longitudes are unwrapped, so a track may cross 180 deg.
+    Longitudes are unwrapped, so a track may cross 180 deg.  The deflection of the
+    vertical (xi north-south, eta east-west; docs/conventions.md) tilts the horizontal
+    frame the levels and a levelled ship follow: 5-30'' in most places, and every
+    arcsecond of it goes into elevation and roll if it is left out.
     """
 
     lat_rad: np.ndarray = None
     lon_rad: np.ndarray = None
     height_m: np.ndarray = None
+    xi_rad: np.ndarray = None
+    eta_rad: np.ndarray = None
 
     @classmethod
-    def fixed(cls, lat_deg: float, lon_deg: float, height_m: float = 0.0) -> "Track":
+    def fixed(cls, lat_deg: float, lon_deg: float, height_m: float = 0.0, xi_arcsec: float = 0.0,
+              eta_arcsec: float = 0.0) -> "Track":
+        """A fixed site: geodetic latitude and longitude (deg; longitude within [-180, 360]),
+        height above WGS84 (m), deflection of the vertical (arcsec)."""
         from shipstar.sky.apparent import Site
 
-        Site.from_deg(lat_deg, lon_deg, height_m)        # validates
-        return cls("fixed site", 0.0, 0.0, np.zeros(1), np.array([lat_deg * DEG2RAD]),
-                   np.array([lon_deg * DEG2RAD]), np.array([float(height_m)]))
+        site = Site.from_deg(lat_deg, lon_deg, height_m, xi_arcsec, eta_arcsec)        # validates
+        return cls("fixed site", 0.0, 0.0, np.zeros(1), np.array([site.lat_rad]), np.array([site.lon_rad]),
+                   np.array([site.height_m]), np.array([site.xi_rad]), np.array([site.eta_rad]))
 
     @classmethod
-    def from_arrays(cls, jd1, jd2, lat_deg, lon_deg, height_m=None, name: str = "track") -> "Track":
+    def from_arrays(cls, jd1, jd2, lat_deg, lon_deg, height_m=None, name: str = "track", *, xi_arcsec=None,
+                    eta_arcsec=None) -> "Track":
+        """A track from per-row arrays ``(M,)``; ``height_m``, ``xi_arcsec``, ``eta_arcsec``
+        default to 0.  Each row is validated (:meth:`shipstar.sky.apparent.Site.from_deg`)."""
         from shipstar.sky.apparent import Site
 
         jd1, jd2 = np.asarray(jd1, float), np.asarray(jd2, float)
         lat, lon = np.asarray(lat_deg, float), np.asarray(lon_deg, float)
-        h = np.zeros(len(lat)) if height_m is None else np.asarray(height_m, float)
-        for a, b, c in zip(lat, lon, h):
-            Site.from_deg(a, b, c)
+        cols = [np.zeros(len(lat)) if c is None else np.asarray(c, float) for c in (height_m, xi_arcsec, eta_arcsec)]
+        for c in (jd2, lat, lon, *cols):
+            if c.shape != jd1.shape or c.ndim != 1 or len(c) == 0:
+                raise ShipstarError(f"{name}: every column must have the same length (M,) with M >= 1, "
+                                    f"got shapes {jd1.shape} and {c.shape}")
+        sites = []
+        for k, row in enumerate(zip(lat, lon, *cols)):
+            try:
+                sites.append(Site.from_deg(*row))
+            except ShipstarError as exc:
+                raise ShipstarError(f"{name}, data row {k + 1}: {exc}") from None
         t = ((jd1 - jd1[0]) + (jd2 - jd2[0])) * DAY_S
-        return cls(name, float(jd1[0]), float(jd2[0]), t, lat * DEG2RAD, np.unwrap(lon * DEG2RAD), h)
+        lon_rad = np.unwrap(np.array([s.lon_rad for s in sites]))
+        return cls(name, float(jd1[0]), float(jd2[0]), t, lat * DEG2RAD, lon_rad, cols[0],
+                   np.array([s.xi_rad for s in sites]), np.array([s.eta_rad for s in sites]))
 
     @classmethod
     def read_csv(cls, path) -> "Track":
-        """CSV columns ``time_utc, lat_deg, lon_deg[, height_m]``."""
-        jd1, jd2, c = read_csv_table(path, ("lat_deg", "lon_deg"), ("height_m",))
-        try:
-            return cls.from_arrays(jd1, jd2, c["lat_deg"], c["lon_deg"], c.get("height_m"), name=f"track {path}")
-        except ShipstarError as exc:
-            raise ShipstarError(f"{path}: {exc}") from None
+        """CSV columns ``time_utc, lat_deg, lon_deg[, height_m][, xi_arcsec, eta_arcsec]``."""
+        jd1, jd2, c = read_csv_table(path, ("lat_deg", "lon_deg"), ("height_m", "xi_arcsec", "eta_arcsec"))
+        return cls.from_arrays(jd1, jd2, c["lat_deg"], c["lon_deg"], c.get("height_m"), name=f"track {path}",
+                               xi_arcsec=c.get("xi_arcsec"), eta_arcsec=c.get("eta_arcsec"))
 
     def site(self, utc_jd1: float, utc_jd2: float):
-        """The ship's :class:`~shipstar.sky.apparent.Site` at a time."""
+        """The ship's :class:`~shipstar.sky.apparent.Site` at a time (with the deflection of
+        the vertical)."""
         from shipstar.sky.apparent import Site
 
         i, f = self._weights(utc_jd1, utc_jd2)
-        return Site(_interp(self.lat_rad, i, f), _interp(self.lon_rad, i, f), _interp(self.height_m, i, f))
+        xi = 0.0 if self.xi_rad is None else _interp(self.xi_rad, i, f)
+        eta = 0.0 if self.eta_rad is None else _interp(self.eta_rad, i, f)
+        lon = math.remainder(_interp(self.lon_rad, i, f), 2.0 * math.pi)
+        return Site(_interp(self.lat_rad, i, f), lon, _interp(self.height_m, i, f), xi, eta)
 
 
 @dataclass(frozen=True, eq=False)
@@ -236,3 +261,57 @@ class TruthTable(_TimeTable):
         if abs(self.t_s[i] - t) > tolerance_s:
             return math.nan, math.nan, math.nan
         return float(self.heading_rad[i]), float(self.pitch_rad[i]), float(self.roll_rad[i])
+
+
+@dataclass(frozen=True)
+class EopQuality:
+    """Earth orientation over a session: the worst quality and largest estimated errors.
+
+    Attributes
+    ----------
+    quality : str
+        ``"measured"``, ``"predicted"`` or ``"extrapolated"`` (:mod:`shipstar.sky.eop`).
+    dut1_error_s : float
+        Largest estimated UT1 - UTC error (s); 1 s of UT1 turns azimuths by 15''.
+    polar_motion_error_arcsec : float
+        Largest estimated error of each polar motion component.
+    """
+
+    quality: str
+    dut1_error_s: float
+    polar_motion_error_arcsec: float
+
+    def as_dict(self) -> dict:
+        return {"quality": self.quality, "dut1_error_s": self.dut1_error_s,
+                "polar_motion_error_arcsec": self.polar_motion_error_arcsec}
+
+
+def eop_quality(utc_jd1, utc_jd2) -> EopQuality:
+    """:class:`EopQuality` over frame times (two-part UTC Julian dates, arrays ``(M,)``).
+
+    Evaluated at up to 200 times spread over the session, first and last included
+    (quality and errors change on a scale of days).  Accuracy warnings are not repeated
+    here (the processing of the frames issued them).
+
+    Raises
+    ------
+    ShipstarError
+        No times, or a time outside the Earth orientation tables.
+    """
+    import warnings
+
+    from shipstar.errors import AccuracyWarning
+    from shipstar.sky.eop import QUALITIES, earth_orientation
+    from shipstar.units import RAD2ASEC
+
+    jd1, jd2 = np.atleast_1d(np.asarray(utc_jd1, float)), np.atleast_1d(np.asarray(utc_jd2, float))
+    if jd1.size == 0 or jd1.shape != jd2.shape:
+        raise ShipstarError(f"eop_quality needs matching, non-empty time arrays, got {jd1.shape} and {jd2.shape}")
+    order = np.argsort((jd1 - jd1[0]) + jd2)
+    picks = order[np.unique(np.round(np.linspace(0, len(order) - 1, min(len(order), 200))).astype(int))]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", AccuracyWarning)
+        eops = [earth_orientation(jd1[k], jd2[k]) for k in picks]
+    return EopQuality(quality=max((e.quality for e in eops), key=QUALITIES.index),
+                      dut1_error_s=max(e.dut1_error_s for e in eops),
+                      polar_motion_error_arcsec=max(e.polar_motion_error_rad for e in eops) * RAD2ASEC)

@@ -115,7 +115,7 @@ def truth_dict(frame, fits_name: str | None = None) -> dict:
         "image_shape_hw_px": list(frame.image.shape),
         "camera_name": frame.camera_name,
         "camera": frame.camera.as_dict(),
-        "utc_mid_exposure": frame.utc_iso,
+        "utc_mid_exposure": _iso6(frame.utc_jd1, frame.utc_jd2) + "Z",
         "exposure_s": frame.exposure_s,
         "epoch_jyear": frame.epoch_jyear,
         "seed": frame.seed,
@@ -153,27 +153,41 @@ def _wcs_cards(frame) -> list:
             ("CD1_1", cd[0][0], ""), ("CD1_2", cd[0][1], ""), ("CD2_1", cd[1][0], ""), ("CD2_2", cd[1][1], "")]
 
 
+def _iso6(jd1: float, jd2: float) -> str:
+    """ISO 8601 UTC with microseconds, without the ``Z`` (FITS date format)."""
+    from shipstar.sky.time import iso_from_utc_jd
+
+    return iso_from_utc_jd(jd1, jd2, 6).rstrip("Z")
+
+
+def _time_cards(frame) -> list:
+    """FITS 4.0 time cards: DATE-OBS = DATE-BEG = start, DATE-AVG = mid, DATE-END = end."""
+    from shipstar.sky.time import mjd_from_jd
+
+    half_d = 0.5 * frame.exposure_s / 86400.0
+    jd = {"BEG": (frame.utc_jd1, frame.utc_jd2 - half_d), "AVG": (frame.utc_jd1, frame.utc_jd2),
+          "END": (frame.utc_jd1, frame.utc_jd2 + half_d)}
+    what = {"BEG": "start of exposure", "AVG": "mid-exposure", "END": "end of exposure"}
+    cards = [("DATE-OBS", _iso6(*jd["BEG"]), "UTC, start of exposure (FITS standard)")]
+    cards += [(f"DATE-{k}", _iso6(*v), f"UTC, {what[k]}") for k, v in jd.items()]
+    cards += [("MJD-OBS", float(mjd_from_jd(*jd["BEG"])), "[d] UTC MJD, start of exposure")]
+    cards += [(f"MJD-{k}", float(mjd_from_jd(*v)), f"[d] UTC MJD, {what[k]}") for k, v in jd.items()]
+    return cards + [("TIMESYS", "UTC", ""), ("EXPTIME", frame.exposure_s, "[s] exposure time")]
+
+
 def fits_header_cards(frame) -> list:
-    """FITS header cards ``(keyword, value, comment)`` of a frame."""
+    """FITS header cards ``(keyword, value, comment)`` of a frame.
+
+    Times with microseconds: ``DATE-OBS`` and ``DATE-BEG`` at the start of the exposure
+    (FITS 4.0), ``DATE-AVG`` at mid-exposure (the truth time), ``DATE-END`` at its end;
+    ``ROWORDER = 'TOP-DOWN'`` (row 0 of the data is the top of the image).
+    """
     from shipstar import __version__
-    from shipstar.sky.time import iso_from_utc_jd, mjd_from_jd
 
     cam = frame.camera
-    half_d = 0.5 * frame.exposure_s / 86400.0
-    beg = iso_from_utc_jd(frame.utc_jd1, frame.utc_jd2 - half_d, 3)
-    end = iso_from_utc_jd(frame.utc_jd1, frame.utc_jd2 + half_d, 3)
     q = q_wxyz_from_matrix(frame.C_icrs_from_sensor)
-    cards = [
-        ("DATE-OBS", frame.utc_iso.rstrip("Z"), "UTC, mid-exposure"),
-        ("DATE-AVG", frame.utc_iso.rstrip("Z"), "UTC, mid-exposure"),
-        ("DATE-BEG", beg.rstrip("Z"), "UTC, start of exposure"),
-        ("DATE-END", end.rstrip("Z"), "UTC, end of exposure"),
-        ("MJD-OBS", float(mjd_from_jd(frame.utc_jd1, frame.utc_jd2)), "[d] UTC MJD, mid-exposure"),
-        ("MJD-AVG", float(mjd_from_jd(frame.utc_jd1, frame.utc_jd2)), "[d] UTC MJD, mid-exposure"),
-        ("MJD-BEG", float(mjd_from_jd(frame.utc_jd1, frame.utc_jd2 - half_d)), "[d] UTC MJD, start"),
-        ("MJD-END", float(mjd_from_jd(frame.utc_jd1, frame.utc_jd2 + half_d)), "[d] UTC MJD, end"),
-        ("TIMESYS", "UTC", ""),
-        ("EXPTIME", frame.exposure_s, "[s] exposure time"),
+    cards = _time_cards(frame) + [
+        ("ROWORDER", "TOP-DOWN", "first row stored is the top of the image"),
         ("INSTRUME", cam.name, "star sensor"), ("SENSOR", cam.name, "star sensor"),
         ("ORIGIN", f"shipstar {__version__}", "simulated frame"),
         ("BUNIT", "adu", ""), ("FOCALLEN", cam.f_mm, "[mm] focal length"),
@@ -238,15 +252,11 @@ def write_frame(frame, path) -> tuple[Path, Path]:
 
 
 def _read_fits_image(path: Path) -> np.ndarray:
-    from astropy.io import fits
+    from shipstar._fitsio import read_fits_image
 
-    try:
-        with fits.open(path, memmap=False) as hdul:
-            return np.array(hdul[0].data)
-    except FileNotFoundError:
-        raise ShipstarError(f"no FITS file {path} beside its truth file") from None
-    except (OSError, ValueError, TypeError, IndexError) as exc:
-        raise ShipstarError(f"cannot read FITS file {path}: {str(exc).splitlines()[0] if str(exc) else exc!r}") from None
+    if not path.exists():
+        raise ShipstarError(f"no FITS file {path} beside its truth file")
+    return read_fits_image(path)
 
 
 def read_truth(path, *, check_image: bool = True) -> dict:

@@ -10,10 +10,15 @@ installation angles, clock offset), the weather and the frame rate.  Two levels:
     projected by the camera, with Gaussian centroid noise; the stars' HIP numbers are
     kept (identification assumed correct).
 :func:`write_session`
-    Image level: every frame rendered (``shipstar.simulate.simulate_frame``, motion
-    smear from the ship's angular rate) and written as FITS with DATE-OBS plus its truth
-    JSON, and the session's truth, track and weather as CSV files and ``session.toml``
-    (``docs/file-formats.md``).
+    Image level: every frame rendered along the stars' true paths during the exposure
+    (the ship's attitude at 17 instants of it: ``_motion.exposure_path_px``, so a streak
+    is the time-integrated image even when the deck accelerates) and written as FITS
+    (``DATE-OBS``/``DATE-BEG`` = start, ``DATE-AVG`` = mid-exposure, ``EXPTIME``) plus
+    its truth JSON, and the session's truth, track and weather as CSV files and
+    ``session.toml`` (``docs/file-formats.md``).
+
+Frame times are whole microseconds (the resolution of every time tag written), so the
+times in the files are the simulated times exactly.
 
 :func:`dock_session` is seed 000's calibration night (Jiangyin, 2013-03-15 ~20:16 local
 time, heading 46 deg 28' 28.51'', level, 11.10 C, 1021.70 hPa, A1 and A2 at their Table
@@ -36,6 +41,7 @@ __all__ = [
     "SensorSetup", "ShipMotion", "SessionSpec", "CentroidFrame",
     "dock_session", "sea_session", "simulate_centroids", "write_session",
     "SEED_DOCK_HEADING_DEG", "SEED_A1_INSTALL_DEG", "SEED_A2_INSTALL_DEG",
+    "estimate_output_bytes", "MAX_TIME_OFFSET_S", "DEFAULT_MAX_OUTPUT_BYTES",
 ]
 
 #: Seed 000: heading 46 deg 28' 28.51'' from the theodolite.
@@ -47,6 +53,12 @@ SEED_A2_INSTALL_DEG = (274.9246, 35.1031, 0.0789)
 _EARTH_RADIUS_M = 6371008.8
 #: Step of the numerical angular-rate derivative (s).
 _RATE_STEP_S = 1e-3
+#: Largest clock offset of a sensor (s).
+MAX_TIME_OFFSET_S = 1.0
+#: Default cap on what :func:`write_session` may write (bytes).
+DEFAULT_MAX_OUTPUT_BYTES = 20 * 10**9
+#: Frame times are whole multiples of 1 / this (s): the microsecond of the files' time tags.
+_PER_S = 1e6
 
 
 @dataclass(frozen=True)
@@ -61,7 +73,8 @@ class SensorSetup:
     install_az_rad, install_el_rad, install_roll_rad : float
         True installation angles (``C_deck_from_sensor = R_y(A) R_z(-E) R_x(-gamma)``).
     time_offset_s : float
-        This sensor's exposures are this much later than the session's frame clock.
+        This sensor's exposures are this much later than the session's frame clock
+        (within +-``MAX_TIME_OFFSET_S``).
     """
 
     name: str
@@ -169,8 +182,12 @@ class SessionSpec:
     exposure_s : float or None
         Image level: replaces the cameras' exposure time (None: keep it).  At sea the
         deck turns by up to 4 deg/s, which smears an 80 ms exposure over 25-40 px; the
-        sea session uses 10 ms (3-5 px).
+        sea session uses 10 ms (3-5 px).  The frame period must not be shorter.
     seed : int
+
+    Everything is validated on construction (before anything is written): the frame
+    period against each sensor's exposure, the clock offsets, and the weather and the
+    ship's position over the whole time span of the frames.
     """
 
     kind: str
@@ -194,9 +211,12 @@ class SessionSpec:
         from shipstar.sky.time import utc_jd_from_iso
 
         utc_jd_from_iso(self.start_utc)
+        frac = self.start_utc.strip().rstrip("Z").partition(".")[2]
+        if len(frac) > 6:
+            raise ShipstarError(f"session start_utc {self.start_utc!r}: give at most 6 decimals (microseconds)")
         for name in ("duration_s", "frame_rate_hz"):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ShipstarError(f"session {name} must be a finite number > 0, got {v!r}")
         if not self.sensors:
             raise ShipstarError("a session needs at least one sensor")
@@ -207,6 +227,41 @@ class SessionSpec:
             raise ShipstarError(f"centroid_sigma_px must be finite and >= 0, got {self.centroid_sigma_px!r}")
         if self.exposure_s is not None and not (math.isfinite(self.exposure_s) and self.exposure_s > 0):
             raise ShipstarError(f"exposure_s must be finite and > 0, got {self.exposure_s!r}")
+        for s in self.sensors:
+            self._check_sensor(s)
+        self._check_span()
+
+    def _check_sensor(self, s: SensorSetup) -> None:
+        off = s.time_offset_s
+        if isinstance(off, bool) or not isinstance(off, (int, float)) or not math.isfinite(off) \
+                or abs(off) > MAX_TIME_OFFSET_S:
+            raise ShipstarError(f"sensor {s.name}: time_offset_s = {off!r} s is not within "
+                                f"+-{MAX_TIME_OFFSET_S:g} s (a clock offset between the sensors)")
+        period_s, exposure_s = 1.0 / self.frame_rate_hz, self.exposure_of(s)
+        if period_s < exposure_s:
+            raise ShipstarError(f"frame period {period_s:.6g} s ({self.frame_rate_hz:g} Hz) is shorter than sensor "
+                                f"{s.name}'s exposure {exposure_s:g} s: at most {1.0 / exposure_s:.6g} Hz")
+
+    def _check_span(self) -> None:
+        """The weather and the ship's position at the first and last frame times and at the
+        ends of the track and weather tables (1 s margins); both drift linearly, so the ends
+        bound them.  One line naming the time if impossible."""
+        from shipstar.sky.refraction import min_true_el_rad
+
+        n = self.n_frames()
+        first = min(self._time_s(s, 0) for s in self.sensors)
+        last = max(self._time_s(s, n - 1) for s in self.sensors)
+        for t in (first, last, -1.0, self.duration_s + 1.0):
+            try:
+                min_true_el_rad(self.weather(t), self.refraction_model)
+                self.site(t)
+            except ShipstarError as exc:
+                raise ShipstarError(f"the session's weather or ship position at t = {t:.6g} s (frames from "
+                                    f"{first:.6g} to {last:.6g} s; both drift linearly): {exc}") from None
+
+    def exposure_of(self, sensor: SensorSetup) -> float:
+        """Exposure time (s) of a sensor's frames: the session's, else its camera's."""
+        return float(sensor.camera.exposure_s if self.exposure_s is None else self.exposure_s)
 
     def replace(self, **changes) -> "SessionSpec":
         return replace(self, **changes)
@@ -217,10 +272,19 @@ class SessionSpec:
                 return s
         raise ShipstarError(f"no sensor {name!r} in the session (have {', '.join(s.name for s in self.sensors)})")
 
+    def n_frames(self) -> int:
+        """Frames per sensor."""
+        return int(math.floor(self.duration_s * self.frame_rate_hz - 1e-9)) + 1
+
     def times_s(self, sensor: SensorSetup) -> np.ndarray:
-        """Mid-exposure times (s since start) of a sensor's frames."""
-        n = int(math.floor(self.duration_s * self.frame_rate_hz - 1e-9)) + 1
-        return np.arange(n) / self.frame_rate_hz + sensor.time_offset_s
+        """Mid-exposure times (s since start) of a sensor's frames: ``k / frame_rate_hz +
+        time_offset_s`` rounded to whole microseconds (the files' time resolution)."""
+        return self._time_s(sensor, np.arange(self.n_frames()))
+
+    def _time_s(self, sensor: SensorSetup, k):
+        t = np.asarray(k) / self.frame_rate_hz + sensor.time_offset_s
+        out = np.round(t * _PER_S) / _PER_S          # the float nearest to the whole microsecond
+        return float(out) if out.ndim == 0 else out
 
     def utc_jd(self, t_s: float) -> tuple[float, float]:
         from shipstar.sky.time import utc_jd_from_iso
@@ -231,7 +295,7 @@ class SessionSpec:
     def utc_iso(self, t_s: float) -> str:
         from shipstar.sky.time import iso_from_utc_jd
 
-        return iso_from_utc_jd(*self.utc_jd(t_s), 3)
+        return iso_from_utc_jd(*self.utc_jd(t_s), 6)
 
     def weather(self, t_s: float):
         from shipstar.sky.refraction import Weather
@@ -378,6 +442,12 @@ def _weather_rows(spec: SessionSpec) -> list:
     return rows
 
 
+def _toml_exposure(spec: SessionSpec) -> list:
+    """``exposure_s`` of every frame when all sensors share it (else only per sensor)."""
+    values = {spec.exposure_of(s) for s in spec.sensors}
+    return [f"exposure_s = {values.pop()!r}"] if len(values) == 1 else []
+
+
 def _toml_text(spec: SessionSpec) -> str:
     import json
 
@@ -386,7 +456,7 @@ def _toml_text(spec: SessionSpec) -> str:
              "format_version = 1", f"kind = {json.dumps(spec.kind)}", f"start_utc = {json.dumps(spec.start_utc)}",
              f"duration_s = {spec.duration_s!r}", f"frame_rate_hz = {spec.frame_rate_hz!r}",
              f"refraction_model = {json.dumps(spec.refraction_model)}", f"mag_limit = {spec.mag_limit!r}",
-             f"exposure_s = {'nan' if spec.exposure_s is None else repr(spec.exposure_s)}",
+             *_toml_exposure(spec),
              f"seed = {spec.seed}", "", "[ship]", f"heading0_deg = {m.heading0_rad * RAD2DEG!r}",
              f"pitch0_deg = {m.pitch0_rad * RAD2DEG!r}", f"roll0_deg = {m.roll0_rad * RAD2DEG!r}",
              f"lat0_deg = {m.lat0_rad * RAD2DEG!r}", f"lon0_deg = {m.lon0_rad * RAD2DEG!r}",
@@ -399,7 +469,7 @@ def _toml_text(spec: SessionSpec) -> str:
         lines += ["", "[[sensor]]", f"name = {json.dumps(s.name)}", f"camera = {json.dumps(s.camera.name)}",
                   f"az_deg = {s.install_az_rad * RAD2DEG!r}", f"el_deg = {s.install_el_rad * RAD2DEG!r}",
                   f"roll_deg = {s.install_roll_rad * RAD2DEG!r}", f"time_offset_s = {s.time_offset_s!r}",
-                  f"frames_dir = {json.dumps(s.name)}"]
+                  f"exposure_s = {spec.exposure_of(s)!r}", f"frames_dir = {json.dumps(s.name)}"]
     return "\n".join(lines) + "\n"
 
 
@@ -409,35 +479,126 @@ def _write_text(path, text: str) -> None:
     atomic_write_text(path, text)
 
 
+def _curved_image(spec: SessionSpec, s: SensorSetup, t: float, camera, stars, seed: int):
+    """The frame rendered along the stars' true paths (``_motion.exposure_path_px``: the
+    ship's attitude and the Earth's rotation at 17 instants of the exposure; straight
+    uniform paths, e.g. in dock, as one streak: ``_motion.fewest_pieces``), and the stars
+    with their true end-to-end motion as ``smear_px``."""
+    from shipstar.simulate._frame import HOT_PIXEL_FRACTION, hot_pixel_seed
+    from shipstar.simulate._motion import (
+        earth_rate_hor_rad_per_s,
+        exposure_offsets_s,
+        exposure_path_px,
+        fewest_pieces,
+        streak_sources,
+    )
+    from shipstar.simulate._render import render_frame
+
+    tau = exposure_offsets_s(camera.exposure_s)
+    C_hs = spec.motion.C_hor_from_deck(t + tau) @ s.C_deck_from_sensor
+    lat = spec.site(t).astronomical_lat_rad
+    path = exposure_path_px(camera, stars.v_ref, C_hs, tau, earth_rate_hor_rad_per_s(lat))
+    xy, signal, smear = streak_sources(fewest_pieces(path), stars.signal_e)
+    image = render_frame(camera, xy, signal, np.random.default_rng(seed), smear_px=smear,
+                         hot_pixel_fraction=HOT_PIXEL_FRACTION, hot_pixel_seed=hot_pixel_seed(camera))
+    return image, replace(stars, smear_px=path[:, -1] - path[:, 0])
+
+
 def _sensor_frame(spec: SessionSpec, s: SensorSetup, k: int, t: float):
-    from shipstar.simulate._frame import ShipPose, simulate_frame
+    """One rendered frame (a ``SimulatedFrame``) of sensor ``s`` at mid-exposure ``t``."""
+    import erfa
+
+    from shipstar.simulate._frame import HOT_PIXEL_FRACTION, ShipPose, SimulatedFrame
+    from shipstar.simulate._render import FalseObjects
+    from shipstar.simulate._scene import simulate_stars_horizontal
+    from shipstar.sky.apparent import frame_context
+    from shipstar.sky.time import tt_jd_from_utc_jd
 
     K, psi, theta = (float(a) for a in spec.motion.angles_rad(t))
     pose = ShipPose(K, psi, theta, s.install_az_rad, s.install_el_rad, s.install_roll_rad)
     omega = pose.omega_sensor_from_deck(spec.motion.omega_deck_rad_per_s(t))
     seed = int(np.random.SeedSequence([spec.seed, k, sum(map(ord, s.name))]).generate_state(1, np.uint64)[0]) >> 1
-    camera = s.camera if spec.exposure_s is None else s.camera.replace(exposure_s=spec.exposure_s)
-    return simulate_frame(camera, ship=pose, utc_iso=spec.utc_iso(t), site=spec.site(t), weather=spec.weather(t),
-                          refraction_model=spec.refraction_model, mag_limit=spec.mag_limit, seed=seed,
-                          omega_sensor_rad_per_s=omega)
+    camera = s.camera.replace(exposure_s=spec.exposure_of(s))
+    jd1, jd2 = spec.utc_jd(t)
+    context, weather = frame_context(jd1, jd2, spec.site(t)), spec.weather(t)
+    C_hs = pose.C_hor_from_sensor
+    stars = simulate_stars_horizontal(camera, C_hs, context, weather, spec.refraction_model,
+                                      mag_limit=spec.mag_limit, omega_sensor_rad_per_s=omega)
+    image, stars = _curved_image(spec, s, t, camera, stars, seed)
+    return SimulatedFrame(
+        image=image, stars=stars, camera=camera, utc_iso=spec.utc_iso(t), utc_jd1=jd1, utc_jd2=jd2,
+        epoch_jyear=float(erfa.epj(*tt_jd_from_utc_jd(jd1, jd2))),
+        C_icrs_from_sensor=np.asarray(context.C_hor_from_icrs_approx).T @ C_hs, C_hor_from_sensor=C_hs,
+        context=context, weather=weather, refraction_model=spec.refraction_model, ship=pose,
+        omega_sensor_rad_per_s=omega, false_objects=FalseObjects(), seed=seed, mag_limit=float(spec.mag_limit),
+        hot_pixel_fraction=HOT_PIXEL_FRACTION)
 
 
-def write_session(spec: SessionSpec, out_dir, *, progress=None) -> dict:
+def estimate_output_bytes(spec: SessionSpec) -> int:
+    """What :func:`write_session` will write (bytes, an upper estimate): per frame the FITS
+    file (3 header blocks + the padded uint16 data) and its truth JSON (4 kB + 0.5 kB per
+    star, for three times the sky's mean star density to the magnitude limit)."""
+    from shipstar.simulate._field import star_field
+
+    n_sky = len(star_field(spec.mag_limit).catalog.hip)
+    total = 0
+    for s in spec.sensors:
+        cam = s.camera
+        fits_bytes = 3 * 2880 + -(-2 * cam.width_px * cam.height_px // 2880) * 2880
+        fov_sr = (cam.width_px * cam.pixel_mm / cam.f_mm) * (cam.height_px * cam.pixel_mm / cam.f_mm)
+        stars = 3.0 * n_sky * fov_sr / (4.0 * math.pi)
+        total += spec.n_frames() * (fits_bytes + 4096 + int(512 * stars))
+    truth_rows = len(spec.sensors) * spec.n_frames()
+    return int(total + 120 * truth_rows + 200 * (spec.duration_s + 3) + 4096)
+
+
+def _preflight(spec: SessionSpec, out, max_output_bytes) -> None:
+    """Refuse before anything is created: an output over the cap or over the free space."""
+    import shutil
+    from pathlib import Path
+
+    need = estimate_output_bytes(spec)
+    if max_output_bytes is not None and need > max_output_bytes:
+        raise ShipstarError(f"the session would write ~{_size(need)} ({len(spec.sensors)} x {spec.n_frames()} frames), "
+                            f"over the cap of {_size(max_output_bytes)}: shorten it, lower the frame rate or "
+                            "raise the cap")
+    probe = Path(out).absolute()
+    while not probe.exists():
+        probe = probe.parent
+    free = shutil.disk_usage(probe).free
+    if need > free:
+        raise ShipstarError(f"the session would write ~{_size(need)} but {probe} has only {_size(free)} free")
+
+
+def _size(n_bytes: float) -> str:
+    for unit, scale in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if n_bytes >= scale:
+            return f"{n_bytes / scale:.3g} {unit}"
+    return f"{int(n_bytes)} B"
+
+
+def write_session(spec: SessionSpec, out_dir, *, progress=None,
+                  max_output_bytes: int | None = DEFAULT_MAX_OUTPUT_BYTES) -> dict:
     """Render every frame of a session and write it to ``out_dir``.
 
     Layout (docs/file-formats.md)::
 
-        out_dir/session.toml          the spec (sensors, true installation, ship motion)
+        out_dir/session.toml          the spec (sensors, true installation, ship motion), written last
         out_dir/truth.csv             time_utc, t_s, heading_deg, pitch_deg, roll_deg
         out_dir/track.csv             time_utc, lat_deg, lon_deg, height_m (1 s steps)
         out_dir/weather.csv           time_utc, pressure_hpa, temperature_c, relative_humidity
-        out_dir/<sensor>/<sensor>_00000.fits  (+ .truth.json)   DATE-OBS = mid-exposure
+        out_dir/<sensor>/<sensor>_00000.fits  (+ .truth.json)   DATE-AVG = mid-exposure,
+                                      DATE-OBS = DATE-BEG = start, DATE-END, EXPTIME
 
     Parameters
     ----------
     spec : SessionSpec
     out_dir : str or Path
     progress : callable(done, total), optional
+    max_output_bytes : int or None
+        Refuse (before creating anything) a session whose estimated size
+        (:func:`estimate_output_bytes`) is larger; None: no cap.  A session larger than
+        the free disk space is always refused.
 
     Returns
     -------
@@ -448,12 +609,15 @@ def write_session(spec: SessionSpec, out_dir, *, progress=None) -> dict:
 
     from shipstar.simulate._fits import write_frame
 
+    if not isinstance(spec, SessionSpec):
+        raise ShipstarError(f"write_session needs a SessionSpec, got {type(spec).__name__}")
     out = Path(out_dir)
+    _preflight(spec, out, max_output_bytes)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ShipstarError(f"cannot create {out}: {exc.strerror or exc}") from None
-    total = sum(len(spec.times_s(s)) for s in spec.sensors)
+    total = spec.n_frames() * len(spec.sensors)
     frames, done = {}, 0
     for s in spec.sensors:
         (out / s.name).mkdir(exist_ok=True)

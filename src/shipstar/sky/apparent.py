@@ -50,12 +50,17 @@ __all__ = [
     "C_hor_from_itrs",
     "MAX_DEFLECTION_ARCSEC",
     "HEIGHT_RANGE_M",
+    "LON_RANGE_DEG",
 ]
 
 #: Largest accepted deflection of the vertical component (arcsec); real ones are < 1'.
 MAX_DEFLECTION_ARCSEC = 120.0
 #: Accepted site heights above the WGS84 ellipsoid (m).
 HEIGHT_RANGE_M = (-1000.0, 10000.0)
+#: Accepted longitudes (deg) at the edges (:meth:`Site.from_deg`): east positive, or 0-360.
+LON_RANGE_DEG = (-180.0, 360.0)
+#: Longitudes in radians beyond this are refused (unwrapped tracks may pass +-180 deg).
+_MAX_ABS_LON_RAD = 4.0 * math.pi
 #: Julian dates accepted by :func:`frame_context` (1960-2100; the IERS tables limit further).
 _MIN_JD, _MAX_JD = 2436934.5, 2488069.5
 
@@ -81,7 +86,7 @@ class Site:
     Attributes
     ----------
     lat_rad, lon_rad : float
-        Geodetic latitude and longitude (east positive).
+        Geodetic latitude and longitude (east positive; kept in (-pi, pi]).
     height_m : float
         Height above the WGS84 ellipsoid.
     xi_rad, eta_rad : float
@@ -113,14 +118,25 @@ class Site:
             raise ShipstarError("astronomical latitude (latitude + xi) is beyond a pole")
         if self.eta_rad != 0.0 and math.cos(self.lat_rad) < 1e-6:
             raise ShipstarError("eta (east-west deflection) is undefined at a pole")
-        object.__setattr__(self, "lon_rad", math.remainder(self.lon_rad, 2.0 * math.pi))
+        if abs(self.lon_rad) > _MAX_ABS_LON_RAD:
+            raise ShipstarError(f"longitude {self.lon_rad:.6g} rad is not a longitude")
+        lon = math.remainder(self.lon_rad, 2.0 * math.pi)
+        object.__setattr__(self, "lon_rad", lon + 2.0 * math.pi if lon <= -math.pi else lon)
 
     @classmethod
     def from_deg(cls, lat_deg, lon_deg, height_m=0.0, xi_arcsec=0.0, eta_arcsec=0.0) -> "Site":
-        """Site from degrees (latitude, longitude east) and arcseconds (xi, eta)."""
+        """Site from degrees (latitude, longitude east) and arcseconds (xi, eta).
+
+        The longitude must lie within [-180, 360] deg (east positive, or 0-360); it is
+        kept normalised to (-180, 180].
+        """
+        lon_deg = _finite(lon_deg, "longitude (deg)")
+        lo, hi = LON_RANGE_DEG
+        if not lo <= lon_deg <= hi:
+            raise ShipstarError(f"longitude {lon_deg:.6g} deg is outside [{lo:.0f}, {hi:.0f}]")
         return cls(
             lat_rad=_finite(lat_deg, "latitude (deg)") * DEG2RAD,
-            lon_rad=_finite(lon_deg, "longitude (deg)") * DEG2RAD,
+            lon_rad=lon_deg * DEG2RAD,
             height_m=_finite(height_m, "height (m)"),
             xi_rad=_finite(xi_arcsec, "xi (arcsec)") * ASEC2RAD,
             eta_rad=_finite(eta_arcsec, "eta (arcsec)") * ASEC2RAD,
