@@ -23,6 +23,7 @@ from shipstar.attitude import (
     esoq2,
     focal_length_from_three_stars,
     quest,
+    quest_single,
     solve_attitude,
     svd_attitude,
     three_star_error_bound,
@@ -203,6 +204,62 @@ def test_weights_matter_and_are_scale_free():
     C1 = quest(w, v, sigma ** -2)
     assert angle_arcsec(quest(w, v, 1e6 * sigma ** -2), C1) < 1e-7
     assert angle_arcsec(quest(w, v), C1) > 0.1
+
+
+def test_quest_single_agrees_with_svd_and_scipy_including_near_180_degrees():
+    # the fast path for one (N, 3) problem of unit vectors; references: Markley's SVD
+    # and scipy's Kabsch (different algorithms), and the truth for noise-free data
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(21)
+    worst = {"truth": 0.0, "svd": 0.0, "scipy": 0.0}
+    for n in (2, 3, 8, 30):
+        for C in hard_rotations(rng):
+            w_true = field(rng, n)
+            worst["truth"] = max(worst["truth"], angle_arcsec(quest_single(w_true, w_true @ C.T), C))
+            sigma = rng.uniform(2, 10, n) * ASEC2RAD
+            w, v = perturb(rng, w_true, sigma), w_true @ C.T
+            a = sigma ** -2
+            got = quest_single(w, v, a)
+            worst["svd"] = max(worst["svd"], angle_arcsec(got, svd_attitude(w, v, a)))
+            if n >= 3:
+                ref, _ = Rotation.align_vectors(v, w, weights=a / a.sum())
+                worst["scipy"] = max(worst["scipy"], angle_arcsec(got, ref.as_matrix()))
+    assert worst["truth"] < 1e-4 and worst["svd"] < 1e-3 and worst["scipy"] < 1e-3, worst
+
+
+def test_quest_single_weights_and_the_near_rotation_recipe():
+    rng = np.random.default_rng(22)
+    C = rot([0.2, 0.9, -0.4], math.pi - 0.01)          # where QUEST takes sequential rotations
+    w_true = field(rng, 12)
+    sigma = np.r_[np.full(6, 1.0), np.full(6, 30.0)] * ASEC2RAD
+    w, v = perturb(rng, w_true, sigma), w_true @ C.T
+    C1 = quest_single(w, v, sigma ** -2)
+    assert angle_arcsec(quest_single(w, v, 1e6 * sigma ** -2), C1) < 1e-7      # scale-free
+    assert angle_arcsec(quest_single(w, v), C1) > 0.1                         # weights matter
+    # the docstring's recipe: solve for the small rotation from a nearby C_near
+    C_near = C @ rot([1.0, -2.0, 0.5], 0.01)
+    assert angle_arcsec(C_near @ quest_single(w, v @ C_near), quest_single(w, v)) < 1e-6
+    # lists are accepted; NaN input gives a NaN matrix, not a number
+    np.testing.assert_array_equal(quest_single(w.tolist(), v.tolist()), quest_single(w, v))
+    w_bad = w.copy()
+    w_bad[3, 1] = np.nan
+    assert np.isnan(quest_single(w_bad, v)).all()
+
+
+@pytest.mark.parametrize("args, words", [
+    ((np.eye(3)[:2], np.eye(3)), "one shape"),
+    ((np.eye(3)[:, :2], np.eye(3)[:, :2]), "one shape"),
+    ((np.zeros((0, 3)), np.zeros((0, 3))), "N >= 1"),
+    ((np.array([1.0, 0, 0]), np.array([1.0, 0, 0])), "one shape"),
+    ((np.eye(3), np.eye(3), [1.0, 1.0]), "weights must have shape"),
+    ((np.eye(3), np.eye(3), [1.0, -1.0, 1.0]), "non-negative"),
+    ((np.eye(3), np.eye(3), [1.0, np.nan, 1.0]), "finite"),
+    ((np.eye(3), np.eye(3), [0.0, 0.0, 0.0]), "not all zero"),
+])
+def test_quest_single_bad_input_raises(args, words):
+    with pytest.raises(ShipstarError, match=words):
+        quest_single(*args)
 
 
 # ------------------------------------------------------------------------------------

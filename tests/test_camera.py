@@ -253,6 +253,20 @@ class TestDistortionModel:
             Distortion(p1_per_mm="0.1")
         assert Distortion().is_zero and not Distortion(s2_per_mm=1e-9).is_zero
 
+    def test_is_zero_is_made_once_and_follows_every_field(self):
+        import dataclasses
+        import pickle
+
+        assert Distortion(k1_per_mm2=-0.0).is_zero
+        for f in dataclasses.fields(Distortion):
+            d = Distortion(**{f.name: 1e-12})
+            assert not d.is_zero, f.name
+            assert dataclasses.replace(d, **{f.name: 0.0}).is_zero
+            assert pickle.loads(pickle.dumps(d)) == d and not pickle.loads(pickle.dumps(d)).is_zero
+        # the cached flag is not a field: equality and repr are the coefficients'
+        assert Distortion() == Distortion(p1_per_mm=0.0) and "_is_zero" not in repr(Distortion())
+        assert Distortion().as_dict() == {f.name: 0.0 for f in dataclasses.fields(Distortion)}
+
 
 # ----------------------------------------------------------------------------- round trips
 amp_px = st.floats(-5.0, 5.0, allow_nan=False)

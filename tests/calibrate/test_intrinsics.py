@@ -527,12 +527,16 @@ def test_bad_arguments(frames, truth):
 # Files and plots
 # ---------------------------------------------------------------------------------------
 
-def _write_star_lists(tmp_path, sky, n=None, **extra):
+def _write_star_lists(tmp_path, sky, n=None, xy_keys=("x_px", "y_px"), **extra):
+    """Star lists as ``shipstar solve --json`` writes them (``xy_keys=("x", "y")``: as it
+    wrote them before), plus a ground site."""
     rng = np.random.default_rng(9)
+    kx, ky = xy_keys
+    tmp_path.mkdir(parents=True, exist_ok=True)
     for k, s in enumerate(sky[:n]):
         xy = s["xy"] + rng.normal(0, NOISE_PX, s["xy"].shape)
-        obj = {"solved": True,
-               "stars": [{"x": float(x), "y": float(y), "hip": int(h)} for (x, y), h in zip(xy, s["hip"])],
+        obj = {"solved": True, "reason": "",
+               "stars": [{kx: float(x), ky: float(y), "hip": int(h)} for (x, y), h in zip(xy, s["hip"])],
                "date_obs": iso_from_utc_jd(*s["jd"], 3), "camera": "seed002",
                "width_px": 2560, "height_px": 1920, "lat_deg": 28.2, "lon_deg": 112.9, "height_m": 60.0,
                "pressure_hpa": 1008.0, "temperature_c": 12.0}
@@ -558,8 +562,27 @@ def test_load_json_star_lists(tmp_path, sky, truth):
     assert {f.places for f in loaded.frames} == {"topocentric"}
 
 
-def test_load_json_needs_a_time(tmp_path, sky, truth):
-    _write_star_lists(tmp_path, sky, 2, date_obs=None)
+def test_load_json_star_lists_with_the_older_x_y_keys(tmp_path, sky, truth):
+    new = load_calibration_frames(_write_star_lists(tmp_path / "new", sky, 2), truth).frames
+    old = load_calibration_frames(_write_star_lists(tmp_path / "old", sky, 2, xy_keys=("x", "y")),
+                                  truth).frames
+    for a, b, s in zip(new, old, sky):
+        np.testing.assert_array_equal(a.xy_px, b.xy_px)
+        np.testing.assert_array_equal(a.hip, b.hip)
+        np.testing.assert_array_equal(a.v_ref, b.v_ref)
+        assert np.abs(a.xy_px - s["xy"]).max() < 10 * NOISE_PX     # the positions as written
+
+
+def test_load_json_null_camera_and_size_are_not_given(tmp_path, sky, truth):
+    # what `shipstar solve --fov-deg` writes: "camera": null
+    _write_star_lists(tmp_path, sky, 2, camera=None, width_px=None, height_px=None)
+    loaded = load_calibration_frames(tmp_path, truth)
+    assert [(f.camera_name, f.image_shape_hw) for f in loaded.frames] == [(None, None)] * 2
+
+
+@pytest.mark.parametrize("date_obs", [None, ""])
+def test_load_json_needs_a_time(tmp_path, sky, truth, date_obs):
+    _write_star_lists(tmp_path, sky, 2, date_obs=date_obs)
     with pytest.raises(ShipstarError, match="no observation time.*--date-obs"):
         load_calibration_frames(tmp_path, truth)
     loaded = load_calibration_frames(tmp_path, truth, utc=iso_from_utc_jd(*sky[0]["jd"], 3))
@@ -574,8 +597,12 @@ def test_load_errors(tmp_path, truth):
     (tmp_path / "bad.json").write_text("{not json")
     with pytest.raises(ShipstarError, match="not valid JSON"):
         load_calibration_frames(tmp_path, truth)
-    (tmp_path / "bad.json").write_text(json.dumps({"stars": [{"x": 1.0}]}))
-    with pytest.raises(ShipstarError, match="star 0"):
+    for star in ({"x": 1.0}, {"x_px": 1.0, "hip": 5}, {"x": 1.0, "y_px": 2.0}, [1.0, 2.0]):
+        (tmp_path / "bad.json").write_text(json.dumps({"stars": [star]}))
+        with pytest.raises(ShipstarError, match="star 0 is not an object with .x_px. and .y_px."):
+            load_calibration_frames(tmp_path, truth)
+    (tmp_path / "bad.json").write_text(json.dumps({"stars": [{"x_px": "1", "y_px": 2.0, "hip": 5}]}))
+    with pytest.raises(ShipstarError, match="star 0 x_px must be a finite number"):
         load_calibration_frames(tmp_path, truth)
 
 

@@ -64,8 +64,8 @@ def write_star_lists(directory, truth, *, n=20, noise_px=0.1, seed=0, camera_nam
         if ok.sum() < 8:
             continue
         xy = st.xy_px[ok] + rng.normal(0.0, noise_px, (ok.sum(), 2))
-        obj = {"solved": True, "stars": [{"x": float(x), "y": float(y), "hip": int(h)}
-                                         for (x, y), h in zip(xy, st.hip[ok])],
+        obj = {"solved": True, "reason": "", "stars": [{"x_px": float(x), "y_px": float(y), "hip": int(h)}
+                                                       for (x, y), h in zip(xy, st.hip[ok])],
                "camera": camera_name, "lat_deg": LAT_DEG, "lon_deg": LON_DEG, "height_m": HEIGHT_M,
                "pressure_hpa": 1008.0, "temperature_c": 12.0}
         if with_time:

@@ -101,3 +101,76 @@ def test_bad_arguments_raise(kw, words):
 def test_image_must_be_2d():
     with pytest.raises(ShipstarError, match="2-D"):
         solve_image(np.zeros((5, 5, 3)), fov_deg=10.0)
+
+
+# -- the frame time of FITS images (what `shipstar solve --json` passes on to calibration) --
+
+EXPTIME_S = 2.0
+
+
+@pytest.fixture(scope="module")
+def rendered(cam12):
+    """A seed004 frame and its mid-exposure UTC as an astropy Time (the reference)."""
+    from astropy.time import Time
+
+    from shipstar.simulate import simulate_frame
+
+    (C,) = random_attitudes(1, np.random.default_rng(44))
+    frame = simulate_frame(cam12, C_icrs_from_sensor=C, seed=5)
+    return frame, Time(frame.utc_jd1, frame.utc_jd2, format="jd", scale="utc")
+
+
+def _fits_with(path, image, **cards):
+    """A FITS file with only the given header cards (written by astropy, not shipstar)."""
+    from astropy.io import fits
+
+    hdu = fits.PrimaryHDU(np.asarray(image, dtype=np.uint16))
+    for key, value in cards.items():
+        hdu.header[key.replace("_", "-")] = value
+    hdu.writeto(path)
+    return path
+
+
+def _utc_seconds_between(iso_a, time_b):
+    from astropy.time import Time
+
+    return (Time(iso_a.rstrip("Z"), format="isot", scale="utc") - time_b).to_value("s")
+
+
+def test_fits_date_obs_is_mid_exposure(rendered, db12, cam12, tmp_path):
+    from astropy.time import TimeDelta
+
+    frame, mid = rendered
+    start = (mid - TimeDelta(EXPTIME_S / 2, format="sec")).isot
+    path = _fits_with(tmp_path / "start.fits", frame.image, DATE_OBS=start, EXPTIME=EXPTIME_S)
+    res = solve_image(path, camera=cam12, database=db12)
+    assert res.solved and res.camera_name == "seed004" and res.time_problem == ""
+    assert abs(_utc_seconds_between(res.date_obs, mid)) < 1e-6      # DATE-OBS + EXPTIME / 2
+    # a camera that writes mid-exposure into DATE-OBS
+    res = solve_image(path, camera=cam12, database=db12, date_obs_is="mid")
+    assert abs(_utc_seconds_between(res.date_obs, mid) + EXPTIME_S / 2) < 1e-6
+    assert res.as_json_dict()["date_obs"] == res.date_obs
+
+
+@pytest.mark.parametrize("cards, words", [
+    ({"DATE_OBS": "2024-03-15T20:16:00"}, "EXPTIME"),             # a start, no exposure
+    ({"DATE_OBS": "yesterday", "EXPTIME": 1.0}, "DATE-OBS"),       # malformed
+    ({}, "DATE-OBS"),                                              # no time at all
+])
+def test_fits_without_a_usable_time_still_solves(rendered, db12, cam12, tmp_path, cards, words):
+    frame, _ = rendered
+    res = solve_image(_fits_with(tmp_path / "f.fits", frame.image, **cards), camera=cam12,
+                      database=db12)
+    assert res.solved and res.date_obs == "" and words in res.time_problem
+    d = res.as_json_dict()
+    assert d["date_obs"] is None and d["camera"] == "seed004"
+
+
+def test_arrays_and_other_formats_have_no_time(rendered, db12, cam12, tmp_path):
+    frame, _ = rendered
+    np.save(tmp_path / "f.npy", np.asarray(frame.image, np.uint16))
+    for image in (frame.image, tmp_path / "f.npy"):
+        res = solve_image(image, camera=cam12, database=db12)
+        assert res.solved and res.date_obs == "" and res.time_problem == ""
+    with pytest.raises(ShipstarError, match="date_obs_is"):
+        solve_image(frame.image, camera=cam12, database=db12, date_obs_is="end")

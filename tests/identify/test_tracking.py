@@ -64,12 +64,29 @@ def test_false_stars_only_never_track(db12, cam12):
     (np.eye(3)[:2], {}, "3, 3"),
     (np.diag([1.0, 1.0, -1.0]), {}, "rotation"),
     (2 * np.eye(3), {}, "rotation"),
+    (np.eye(3)[[1, 0, 2]], {}, "rotation"),                        # rows swapped: a mirror
+    (np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1e-3, 0.0, 1.0]]), {}, "rotation"),  # det 1, sheared
+    (np.where(np.eye(3) > 0, np.nan, 0.0), {}, "non-finite"),
+    (np.array([[np.inf, 0, 0], [0, 1, 0], [0, 0, 1]]), {}, "non-finite"),
     (np.eye(3), {"prior_error_deg": -1.0}, "prior_error_deg"),
     (np.eye(3), {"focal_scale": 3.0}, "focal_scale"),
 ])
 def test_bad_prior_raises(db12, prior, kw, words):
     with pytest.raises(ShipstarError, match=words):
         identify_tracking(np.zeros((5, 3)), db12, prior, **kw)
+
+
+def test_rotation_priors_within_rounding_are_accepted(db12, cam12):
+    # a float32 prior, one perturbed at 1e-9 and a nested list are rotations; the prior
+    # check accepts them and tracking finds the stars (reference: the simulated truth)
+    rng = np.random.default_rng(35)
+    (C,) = random_attitudes(1, rng)
+    f = simulate_frame(db12, cam12, C, rng)
+    for prior in (C.astype(np.float32), C + 1e-9 * rng.normal(size=(3, 3)), C.tolist()):
+        r = identify_tracking(f.xy_px, db12, prior, camera=cam12, fallback=False)
+        assert r.solved and r.mode == "tracking"
+        m = r.star_index >= 0
+        assert m.sum() >= 5 and np.all(r.star_index[m] == f.truth_row[m])
 
 
 # -- speed-path pieces against independent references ------------------------------------

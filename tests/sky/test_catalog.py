@@ -239,6 +239,24 @@ def test_index_of_hip_vectorised_and_unknown_listed(full):
         full.subset([0, 1]).index_of_hip(3)
 
 
+def test_index_of_hip_on_an_unsorted_catalog_matches_a_plain_lookup(full):
+    # the sorted HIP numbers are made once per catalog: check them against a dict on a
+    # catalog in random order, and that a returned index array is the caller's own
+    rng = np.random.default_rng(5)
+    shuffled = full.subset(rng.permutation(len(full))[:5000])
+    where = {int(h): k for k, h in enumerate(shuffled.hip)}
+    query = rng.choice(shuffled.hip, 300)
+    for _ in range(2):
+        idx = shuffled.index_of_hip(query)
+        np.testing.assert_array_equal(idx, [where[int(h)] for h in query])
+        idx[:] = -1                                     # writable, and not the cache
+    missing = max(where) + 1
+    with pytest.raises(ShipstarError, match=f"unknown HIP number in this catalog: {missing}$"):
+        shuffled.index_of_hip([query[0], missing])
+    with pytest.raises(ShipstarError, match="unknown HIP number"):
+        full.subset(np.zeros(len(full), bool)).index_of_hip(VEGA)
+
+
 def test_subset_and_read_only(full):
     sub = full.subset(full.mag < 1.0)
     assert 0 < len(sub) < 20 and np.all(sub.mag < 1.0)

@@ -4,7 +4,9 @@ Wahba solvers, all returning ``C_ref_from_body`` (``v_ref = C @ w_body``) and ac
 stacks ``(..., N, 3)``:
 
 - :func:`quest` -- QUEST with Newton's iteration ("Quest-Newton", seeds 000/003) and
-  sequential rotations near 180 degrees;
+  sequential rotations near 180 degrees; :func:`quest_single` is its fast path for one
+  ``(N, 3)`` problem of unit vectors (no normalisation), for callers that solve many
+  (star identification);
 - :func:`svd_attitude` -- Markley's SVD method;
 - :func:`esoq2` -- Mortari's ESOQ2.
 
@@ -39,14 +41,14 @@ from shipstar.attitude._horizontal import (
     sensor_attitude_hor_from_catalog,
 )
 from shipstar.attitude._focal3 import FocalLength, focal_length_from_three_stars
-from shipstar.attitude._quest import quest
+from shipstar.attitude._quest import quest, quest_single
 from shipstar.attitude._select3 import BestThree, all_triples, best_three_stars
 from shipstar.attitude._solve import METHODS, AttitudeSolution, solve_attitude
 from shipstar.attitude._svd import svd_attitude
 
 __all__ = [
     "AttitudeSolution", "solve_attitude", "METHODS",
-    "quest", "svd_attitude", "esoq2",
+    "quest", "quest_single", "svd_attitude", "esoq2",
     "attitude_covariance", "residuals_rad",
     "ThreeStarSolution", "boresight_from_three_stars", "boresight_from_three_radii",
     "FocalLength", "focal_length_from_three_stars",

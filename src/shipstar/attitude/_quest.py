@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from shipstar.attitude import _wahba as wb
+from shipstar.errors import ShipstarError
 
 #: Accept the unrotated frame when the optimal quaternion's scalar part satisfies
 #: ``|q4| >= this`` (rotation angle below ~145 deg); otherwise use the frame (of the
@@ -112,3 +113,58 @@ def quest(w_body, v_ref, weights=None):
     if B.ndim == 2:
         return _quest_single(b)
     return _quest_batch(b)
+
+
+def quest_single(w_body, v_ref, weights=None) -> np.ndarray:
+    """QUEST for one set of matched *unit* vectors: the fast path of :func:`quest`.
+
+    The same algorithm and result as :func:`quest` for one ``(N, 3)`` problem, without
+    its input preparation: the vectors are used as they are (not normalised) and only
+    their shapes are checked.  For callers that solve many small problems from vectors
+    that are unit already (star identification): ~12 us for 25 stars, against ~27 us
+    for :func:`quest`.
+
+    Parameters
+    ----------
+    w_body : array_like, shape (N, 3)
+        Measured unit vectors in the body (sensor) frame.
+    v_ref : array_like, shape (N, 3)
+        The matched reference unit vectors.  Non-unit rows are not an error, but each
+        pair then weighs ``|w_i| |v_i|`` times more: normalise them, or use :func:`quest`.
+    weights : array_like, shape (N,), optional
+        Relative weights (finite, non-negative, not all zero); equal if omitted.
+
+    Returns
+    -------
+    C_ref_from_body : ndarray, shape (3, 3)
+        ``v_ref ~= C_ref_from_body @ w_body``; NaN for NaN input.
+
+    Raises
+    ------
+    ShipstarError
+        ``w_body`` and ``v_ref`` not of one shape ``(N, 3)`` with ``N >= 1``; bad weights.
+
+    Notes
+    -----
+    QUEST takes its sequential rotations (four characteristic solves instead of one)
+    when the attitude is more than ~145 deg from the identity.  A caller that knows a
+    rotation ``C_near`` close to the answer avoids them by solving for the small
+    rotation: ``C_near @ quest_single(w_body, v_ref @ C_near)``.
+    """
+    w = np.asarray(w_body, dtype=np.float64)
+    v = np.asarray(v_ref, dtype=np.float64)
+    if w.ndim != 2 or w.shape[1] != 3 or w.shape != v.shape or w.shape[0] == 0:
+        raise ShipstarError("quest_single takes w_body and v_ref of one shape (N, 3), N >= 1; "
+                            f"got {w.shape} and {v.shape}")
+    if weights is None:
+        B = v.T @ w
+        B *= 1.0 / w.shape[0]
+    else:
+        a = np.asarray(weights, dtype=np.float64)
+        if a.shape != (w.shape[0],):
+            raise ShipstarError(f"weights must have shape ({w.shape[0]},); got {a.shape}")
+        total = float(a.sum())
+        if not np.isfinite(total) or total <= 0.0 or a.min() < 0.0:
+            raise ShipstarError("weights must be finite, non-negative and not all zero")
+        B = (v * (a / total)[:, None]).T @ w
+    return _quest_single(B.ravel().tolist())

@@ -13,16 +13,18 @@ mid-exposure UTC (``DATE-AVG``, else ``DATE-BEG``/``DATE-OBS`` = start plus half
 its reference directions are catalog places.
 
 **JSON star lists** (``*.json``, not ``*.truth.json``), e.g. ``shipstar solve --json``
-output::
+output (which gives ``stars``, ``date_obs``, ``camera``, ``width_px``, ``height_px``)::
 
-    {"stars": [{"x": 812.4, "y": 97.1, "hip": 32349}, ...],
+    {"stars": [{"x_px": 812.4, "y_px": 97.1, "hip": 32349}, ...],
      "date_obs": "2024-03-15T20:16:00.000",         # or "utc"; else --date-obs
      "camera": "seed002", "width_px": 2560, "height_px": 1920,          # optional
      "lat_deg": 31.9, "lon_deg": 120.3, "height_m": 5.0,                # optional (ground)
      "pressure_hpa": 1021.7, "temperature_c": 11.1, "refraction_model": "almanac"}
 
-Stars with ``hip`` missing, null or negative are ignored; a list with ``"solved": false``
-is skipped.  A directory holding FITS files is read as images (JSON files beside them
+A star's pixel position is ``x_px``, ``y_px``; ``x``, ``y`` (what ``shipstar solve``
+wrote before) are accepted too.  Stars with ``hip`` missing, null or negative are
+ignored; a list with ``"solved": false`` is skipped; a null or empty ``date_obs`` or
+``camera`` counts as not given.  A directory holding FITS files is read as images (JSON files beside them
 are ignored).  Values given to :func:`load_calibration_frames` (the command's flags)
 override the files'.
 """
@@ -46,6 +48,8 @@ __all__ = ["LoadedFrames", "load_calibration_frames", "FITS_SUFFIXES",
 IDENTIFY_FOV_TOLERANCE = 0.05
 IDENTIFY_CENTROID_ERROR_PX = 3.0
 _TIME_KEYS = ("date_obs", "utc", "utc_mid_exposure", "DATE-OBS")
+#: a star's pixel position: ``shipstar solve --json``'s keys, then the older ones
+_XY_KEYS = (("x_px", "y_px"), ("x", "y"))
 
 
 @dataclass(frozen=True)
@@ -95,13 +99,15 @@ def _json_meta(path: Path, data: dict) -> _Meta:
     where = f"star list {path.name!r}"
     meta = _Meta(path.name)
     for key in _TIME_KEYS:
-        if data.get(key) is not None:
+        if data.get(key) not in (None, ""):
             meta.utc = data[key]
             break
     cam = data.get("camera")
     if isinstance(cam, dict):
         cam = cam.get("name")
-    meta.camera_name = cam if isinstance(cam, str) else data.get("camera_name")
+    if not isinstance(cam, str) or not cam:
+        cam = data.get("camera_name")
+    meta.camera_name = cam if isinstance(cam, str) and cam else None
     if data.get("width_px") is not None and data.get("height_px") is not None:
         meta.image_shape_hw = (int(_number(data["height_px"], f"{where}: height_px")),
                                int(_number(data["width_px"], f"{where}: width_px")))
@@ -126,17 +132,19 @@ def _json_stars(path: Path):
     except json.JSONDecodeError as exc:
         raise ShipstarError(f"{where} is not valid JSON: {exc.msg} (line {exc.lineno})") from None
     if not isinstance(data, dict) or not isinstance(data.get("stars"), list):
-        raise ShipstarError(f"{where} has no \"stars\" list of {{\"x\", \"y\", \"hip\"}} objects")
+        raise ShipstarError(f"{where} has no \"stars\" list of {{\"x_px\", \"y_px\", \"hip\"}} objects")
     if data.get("solved") is False:
-        return f"not solved: {data.get('reason', 'no reason given')}"
+        return f"not solved: {data.get('reason') or 'no reason given'}"
     xy, hip = [], []
     for k, star in enumerate(data["stars"]):
-        if not isinstance(star, dict) or "x" not in star or "y" not in star:
-            raise ShipstarError(f"{where}: star {k} is not an object with \"x\" and \"y\"")
+        keys = _XY_KEYS[0] if isinstance(star, dict) and _XY_KEYS[0][0] in star else _XY_KEYS[1]
+        if not isinstance(star, dict) or keys[0] not in star or keys[1] not in star:
+            raise ShipstarError(f"{where}: star {k} is not an object with \"x_px\" and \"y_px\" "
+                                "(or \"x\" and \"y\")")
         h = star.get("hip")
         if h is None or isinstance(h, bool) or not isinstance(h, int) or h < 0:
             continue
-        xy.append((_number(star["x"], f"{where}: star {k} x"), _number(star["y"], f"{where}: star {k} y")))
+        xy.append(tuple(_number(star[key], f"{where}: star {k} {key}") for key in keys))
         hip.append(h)
     return np.array(xy, float).reshape(-1, 2), np.array(hip, np.int64), _json_meta(path, data)
 

@@ -69,8 +69,13 @@ class Distortion:
     s2_per_mm: float = 0.0
 
     def __post_init__(self):
+        values = []
         for f in fields(self):
-            object.__setattr__(self, f.name, _finite_float("distortion", f.name, getattr(self, f.name)))
+            value = _finite_float("distortion", f.name, getattr(self, f.name))
+            object.__setattr__(self, f.name, value)
+            values.append(value)
+        # made once: every project / unproject asks (not a field: eq, repr, replace ignore it)
+        object.__setattr__(self, "_is_zero", all(v == 0.0 for v in values))
 
     # ------------------------------------------------------------------ seed 002 form
     @classmethod
@@ -96,7 +101,7 @@ class Distortion:
     @property
     def is_zero(self) -> bool:
         """True when every coefficient is zero (pure pinhole)."""
-        return all(getattr(self, f.name) == 0.0 for f in fields(self))
+        return self._is_zero
 
     def as_dict(self) -> dict[str, float]:
         """Plain ``{field: value}`` (the ``[distortion]`` table of a camera file)."""

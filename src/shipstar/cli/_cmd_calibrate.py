@@ -39,8 +39,9 @@ example (20 frames of the night sky, taken on the ground):
 Frames: a directory of FITS images (mid-exposure UTC from DATE-AVG, else DATE-OBS, the
 start, plus EXPTIME/2, or DATE-OBS itself with --date-obs-is mid; site and weather from
 SITELAT/SITELONG/SITEELEV/PRESSURE/TEMPERAT when present), extracted and identified with
-the nominal camera, or of JSON star lists {"stars": [{"x", "y", "hip"}], "date_obs": ...}
-as 'shipstar solve --json' writes them (add --date-obs when they carry no time).
+the nominal camera, or of JSON star lists {"stars": [{"x_px", "y_px", "hip"}], "date_obs",
+"camera", "width_px", "height_px"} as 'shipstar solve --json' writes them (stars with "x",
+"y", as older files have them, are read too; add --date-obs when they carry no time).
 Reference directions are apparent places at the observation time with per-star
 refraction at the observing site.  Frames taken on the ground need that site (the flags,
 or the files'): without one they are refused, unless --in-space says they were taken

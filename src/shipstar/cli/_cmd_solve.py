@@ -11,6 +11,7 @@ examples:
   shipstar solve frame.fits --camera A1
   shipstar solve night_sky.jpg --fov-deg 10 --json
   shipstar solve frame.png --camera my_camera.toml --mag-limit 7.2
+  shipstar solve night1/f001.fits --camera seed002 --json > lists/f001.json   # for calibration
 
 With --camera (a preset name or a camera TOML file) the calibrated camera model is used.
 With --fov-deg the image is treated as a pinhole camera with the principal point at the
@@ -19,6 +20,13 @@ focal length and a radial distortion term are refined from the matched stars and
 solved FOV is reported.  The star database for the field is built on first use and
 cached (see docs/identification.md).  roll_deg is the position angle of the image's up
 direction, from celestial north through east (docs/conventions.md).
+
+--json prints one object: solved, reason ("" when solved), ra_deg, dec_deg, roll_deg,
+fov_deg, matched, rms_arcsec, time_ms, date_obs (mid-exposure UTC of a FITS image whose
+header gives it: DATE-AVG, else DATE-OBS, the start, plus EXPTIME/2, or DATE-OBS itself
+with --date-obs-is mid; else null), camera (null with --fov-deg), width_px, height_px and
+stars [{"x_px", "y_px", "hip"}] (hip -1 when unmatched).  Saved as FILE.json, it is a
+frame for 'shipstar calibrate intrinsics --frames DIR'.
 
 exit status: 0 solved, 1 not solved (the reason is printed), 2 bad input.
 """
@@ -69,20 +77,30 @@ def register(subparsers) -> argparse.ArgumentParser:
                    help="extraction detection threshold (default 5)")
     p.add_argument("--max-stars", type=_count, default=60,
                    help="brightest extracted stars used (default 60)")
+    p.add_argument("--date-obs-is", choices=("start", "mid"), default="start",
+                   help="what a FITS image's DATE-OBS means (default start, the FITS standard)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(run=run)
     return p
 
 
+def _time_line(res) -> str:
+    if res.date_obs:
+        return f"\nmid-exposure UTC {res.date_obs}"
+    if res.time_problem:
+        return f"\nno frame time: {res.time_problem}"
+    return ""
+
+
 def _summary(res) -> str:
     if not res.solved:
         return (f"not solved: {res.reason}\n"
-                f"{len(res.xy_px)} stars extracted, {res.time_ms:.0f} ms")
+                f"{len(res.xy_px)} stars extracted, {res.time_ms:.0f} ms" + _time_line(res))
     ident = res.identification
     return (f"solved: RA {res.ra_deg:.4f} deg, Dec {res.dec_deg:+.4f} deg, roll {res.roll_deg:.3f} deg, "
             f"FOV {res.fov_deg:.4f} deg\n"
             f"matched {res.matched} of {len(res.xy_px)} stars, rms {res.rms_arcsec:.1f} arcsec, "
-            f"p_false {ident.p_false:.1e}, {res.time_ms:.0f} ms")
+            f"p_false {ident.p_false:.1e}, {res.time_ms:.0f} ms" + _time_line(res))
 
 
 def run(args) -> int:
@@ -91,7 +109,8 @@ def run(args) -> int:
     res = solve_image(args.image, camera=args.camera, fov_deg=args.fov_deg,
                       fov_tolerance=args.fov_tolerance, mag_limit=args.mag_limit,
                       centroid_error_px=args.centroid_error_px,
-                      threshold_sigma=args.threshold_sigma, max_stars=args.max_stars)
+                      threshold_sigma=args.threshold_sigma, max_stars=args.max_stars,
+                      date_obs_is=args.date_obs_is)
     if args.json:
         emit_json(res.as_json_dict())
     else:

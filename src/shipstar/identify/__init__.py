@@ -130,6 +130,31 @@ def _make_field(stars, database, camera, fov_deg, image_shape_hw, centroid_error
                                      error_px=centroid_error_px, focal_tolerance=focal_tolerance)
 
 
+def _checked_rotation(matrix, name: str) -> np.ndarray:
+    """``matrix`` as a float (3, 3) array if it is a finite proper rotation.
+
+    One test, in plain floats (it runs for every tracked frame): rows 0 and 1 orthonormal
+    and row 2 their cross product (the rows of a rotation are a right-handed orthonormal
+    basis), the six absolute errors summing to at most 1e-5 (a float32 rotation passes;
+    a shear or scale that large would move a star by 2 arcsec, far inside any prior's
+    error).  The sum is NaN or inf for non-finite input, so the test fails for that too;
+    the message is chosen only then.
+    """
+    C = np.asarray(matrix, dtype=float)
+    if C.shape == (3, 3):
+        (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = C.tolist()
+        err = (abs(a0 * a0 + a1 * a1 + a2 * a2 - 1.0) + abs(b0 * b0 + b1 * b1 + b2 * b2 - 1.0)
+               + abs(a0 * b0 + a1 * b1 + a2 * b2) + abs(a1 * b2 - a2 * b1 - c0)
+               + abs(a2 * b0 - a0 * b2 - c1) + abs(a0 * b1 - a1 * b0 - c2))
+        if err <= 1e-5:
+            return C
+    if C.shape != (3, 3):
+        raise ShipstarError(f"{name} must be a finite (3, 3) matrix, got shape {C.shape}")
+    if not np.all(np.isfinite(C)):
+        raise ShipstarError(f"{name} must be a finite (3, 3) matrix, got non-finite elements")
+    raise ShipstarError(f"{name} is not a rotation matrix")
+
+
 def _check_probability(p_false_max) -> float:
     p = float(p_false_max)
     if not math.isfinite(p) or not 0.0 < p < 1.0:
@@ -215,16 +240,7 @@ def identify_tracking(stars, database: StarDatabase, C_icrs_from_sensor_prior, *
     **lost_in_space_options
         Passed to :func:`identify_lost_in_space` on fallback.
     """
-    C = np.asarray(C_icrs_from_sensor_prior, dtype=float)
-    if C.shape != (3, 3) or not np.all(np.isfinite(C)):
-        raise ShipstarError(f"C_icrs_from_sensor_prior must be a finite (3, 3) matrix, got "
-                            f"shape {C.shape}")
-    rows3 = C.tolist()
-    (a, b, c), (d, e, f), (g, h, i) = rows3
-    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
-    gram = [sum(x * y for x, y in zip(rows3[m], rows3[k])) for m in range(3) for k in range(m, 3)]
-    if abs(det - 1.0) > 1e-6 or max(abs(q - w) for q, w in zip(gram, (1, 0, 0, 1, 0, 1))) > 1e-6:
-        raise ShipstarError("C_icrs_from_sensor_prior is not a rotation matrix")
+    C = _checked_rotation(C_icrs_from_sensor_prior, "C_icrs_from_sensor_prior")
     err = float(prior_error_deg)
     if not math.isfinite(err) or not 0.0 <= err <= 30.0:
         raise ShipstarError(f"prior_error_deg must be within 0 .. 30, got {prior_error_deg}")

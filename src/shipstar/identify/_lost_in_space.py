@@ -19,11 +19,12 @@ from functools import lru_cache
 
 import numpy as np
 
-from shipstar.attitude import quest
+from shipstar.attitude import quest_single
 from shipstar.identify import _patterns as pat
 from shipstar.identify._result import Identification, failed_identification
 from shipstar.identify._verify import (FINE_GATE, GATE_FRACTIONS, associate, gate_counts,
-                                      min_chance, predict, refine, reproject, rms_arcsec)
+                                      min_chance, predict, refine, reproject, rms_arcsec,
+                                      unit_f64)
 
 __all__ = ["lost_in_space", "LisOptions"]
 
@@ -136,8 +137,8 @@ class _Search:
         s = float(scale) if fit else 1.0
         t4 = field.t[img4]
         w4 = field.unit(s, rows=img4)
-        v4 = db.u_icrs[cat4]
-        C = quest(w4, v4)
+        v4 = unit_f64(db)[cat4]
+        C = quest_single(w4, v4)
         d = w4 @ C.T - v4
         if np.max(np.einsum("ij,ij->i", d, d)) > (2.0 * self.e_edge) ** 2:
             return None                                   # mirror image or wrong pairing

@@ -44,6 +44,15 @@ class SolveResult:
         HIP number of each centroid, -1 when unmatched or not used.
     identification : Identification
     image_shape_hw : tuple
+        ``(height_px, width_px)`` of the image.
+    date_obs : str
+        Mid-exposure UTC (ISO 8601, microseconds, ``Z``) of a FITS image whose header
+        gives it (:mod:`shipstar._fitsio` rules); ``""`` otherwise.
+    camera_name : str
+        Name of the camera model used; ``""`` with ``fov_deg`` (no camera).
+    time_problem : str
+        Why a FITS image has no ``date_obs`` (its header's problem, one line); ``""``
+        when it has one or the image is not FITS.
     """
 
     solved: bool
@@ -60,25 +69,32 @@ class SolveResult:
     hip: np.ndarray
     identification: object
     image_shape_hw: tuple
+    date_obs: str = ""
+    camera_name: str = ""
+    time_problem: str = ""
 
     def as_json_dict(self) -> dict:
-        """The ``shipstar solve --json`` object (None for undefined numbers)."""
+        """The ``shipstar solve --json`` object: always the same keys, None for undefined
+        numbers and for an unknown ``date_obs`` or ``camera``; ``reason`` is ``""`` when
+        solved.  Its star list (``x_px``, ``y_px``, ``hip``; ``hip`` -1 when unmatched),
+        time, camera and image size make it a frame for ``shipstar calibrate intrinsics``.
+        """
 
         def num(x):
             return float(x) if math.isfinite(x) else None
 
-        out = {
-            "solved": bool(self.solved),
+        h, w = self.image_shape_hw
+        return {
+            "solved": bool(self.solved), "reason": str(self.reason),
             "ra_deg": num(self.ra_deg), "dec_deg": num(self.dec_deg),
             "roll_deg": num(self.roll_deg), "fov_deg": num(self.fov_deg),
             "matched": int(self.matched), "rms_arcsec": num(self.rms_arcsec),
             "time_ms": float(self.time_ms),
-            "stars": [{"x": float(x), "y": float(y), "hip": int(h)}
-                      for (x, y), h in zip(self.xy_px, self.hip)],
+            "date_obs": self.date_obs or None, "camera": self.camera_name or None,
+            "width_px": int(w), "height_px": int(h),
+            "stars": [{"x_px": float(x), "y_px": float(y), "hip": int(hh)}
+                      for (x, y), hh in zip(self.xy_px.tolist(), self.hip.tolist())],
         }
-        if not self.solved:
-            out["reason"] = self.reason
-        return out
 
 
 def _as_image(image):
@@ -92,6 +108,37 @@ def _as_image(image):
     return arr
 
 
+def _fits_time(image, date_obs_is: str) -> tuple[str, str]:
+    """``(date_obs, time_problem)`` of an image file that is FITS (by its first bytes, as
+    :func:`shipstar.extract.read_image` recognises it); ``("", "")`` for anything else.
+
+    A header that gives no usable time (none, no exposure length, a malformed date)
+    leaves ``date_obs`` empty and says why: the pixels solve without it.
+    """
+    if not (isinstance(image, str) or hasattr(image, "__fspath__")):
+        return "", ""
+    from pathlib import Path
+
+    path = Path(image)
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(9)
+    except OSError:
+        return "", ""
+    if head != b"SIMPLE  =" and not head.startswith(b"\x1f\x8b"):    # FITS, gzipped FITS
+        return "", ""
+    from shipstar._fitsio import read_fits_header
+    from shipstar.sky.time import iso_from_utc_jd
+
+    try:
+        info = read_fits_header(path, date_obs_is=date_obs_is)
+    except ShipstarError as exc:
+        return "", str(exc)
+    if not info.has_time:
+        return "", info.time_problem
+    return iso_from_utc_jd(info.utc_jd1, info.utc_jd2, 6), ""
+
+
 def _resolve_camera(camera):
     if camera is None or hasattr(camera, "unproject"):
         return camera
@@ -102,7 +149,8 @@ def _resolve_camera(camera):
 
 def solve_image(image, camera=None, fov_deg=None, *, fov_tolerance=None, mag_limit=None,
                 centroid_error_px=None, threshold_sigma: float = 5.0, max_stars: int = 60,
-                p_false_max: float = 1e-6, max_time_s: float = 2.0, database=None) -> SolveResult:
+                p_false_max: float = 1e-6, max_time_s: float = 2.0, database=None,
+                date_obs_is: str = "start") -> SolveResult:
     """Extract the stars of an image, identify them (lost-in-space) and fit the attitude.
 
     Parameters
@@ -126,13 +174,23 @@ def solve_image(image, camera=None, fov_deg=None, *, fov_tolerance=None, mag_lim
     p_false_max, max_time_s : see :func:`identify_lost_in_space`.
     database : StarDatabase, optional
         Use this database instead of building / loading one.
+    date_obs_is : {"start", "mid"}
+        What a FITS image's ``DATE-OBS`` means when its header has no ``DATE-AVG`` /
+        ``DATE-BEG`` (the FITS standard: the start of the exposure); sets ``date_obs``.
     """
+    from shipstar._fitsio import DATE_OBS_CHOICES
     from shipstar.identify import build_database, identify_lost_in_space
 
+    if date_obs_is not in DATE_OBS_CHOICES:
+        raise ShipstarError(f"date_obs_is must be one of {', '.join(DATE_OBS_CHOICES)}, "
+                            f"got {date_obs_is!r}")
     camera = _resolve_camera(camera)
     if (camera is None) == (fov_deg is None):
         raise ShipstarError("give exactly one of camera and fov_deg")
     pixels = _as_image(image)
+    date_obs, time_problem = _fits_time(image, date_obs_is)
+    about = {"date_obs": date_obs, "camera_name": "" if camera is None else str(camera.name),
+             "time_problem": time_problem}
     h, w = pixels.shape
     if camera is not None:
         if (w, h) != (camera.width_px, camera.height_px):
@@ -178,9 +236,9 @@ def solve_image(image, camera=None, fov_deg=None, *, fov_tolerance=None, mag_lim
             reason = f"only {xy.shape[0]} stars found in the image: {ident.reason}"
         return SolveResult(False, reason, math.nan, math.nan, math.nan, fov_solved,
                            np.full((3, 3), np.nan), 0, math.nan, elapsed_ms, xy_all, hip,
-                           ident, (h, w))
+                           ident, (h, w), **about)
     C = ident.C_icrs_from_sensor
     ra, dec, roll = ra_dec_roll_from_C_icrs_from_sensor(C)
     return SolveResult(True, "", float(ra * RAD2DEG), float(dec * RAD2DEG), float(roll * RAD2DEG),
                        fov_solved, C, ident.n_matched, ident.rms_arcsec,
-                       (time.perf_counter() - t1) * 1e3, xy_all, hip, ident, (h, w))
+                       (time.perf_counter() - t1) * 1e3, xy_all, hip, ident, (h, w), **about)

@@ -28,9 +28,11 @@ allows about ``(g_prior / g)^3`` distinguishable attitudes, so
 ``p_false = (g_prior / g)^3 P(Binomial(n - 2, p1) >= k - 2)``, evaluated for ``g`` the
 fine gate and 1/2, 1/4, 1/8 of it (the smallest, times 4).
 
-Speed: a frame is ~100 NumPy calls on arrays of tens of elements plus one QUEST (its
-Python-float core, :func:`._verify.wahba`, solved relative to the prior), ~0.12 ms on
-the 2-core development machine; benchmarks/bench_identify.py compares it with tetra3rs.
+Speed: a frame is ~100 NumPy calls on arrays of tens of elements plus one to three
+QUEST solves (:func:`shipstar.attitude.quest_single` through :func:`._verify.wahba`,
+solved relative to the prior, ~12 us each): median ~0.20 ms on the shared 2-core
+development machine, 1.09x tetra3rs given the same prior in the same run
+(benchmarks/bench_identify.py --tracking-only; docs/identification.md).
 """
 
 from __future__ import annotations

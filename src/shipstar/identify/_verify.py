@@ -15,7 +15,7 @@ import weakref
 
 import numpy as np
 
-from shipstar.attitude._quest import _quest_single
+from shipstar.attitude import quest_single
 from shipstar.identify import _skygrid
 from shipstar.units import RAD2ASEC as _RAD2ASEC
 
@@ -86,19 +86,17 @@ def cell_stars(db, direction):
 def wahba(w_body, v_ref, C_near=None) -> np.ndarray:
     """``C_ref_from_body`` (3, 3) for matched *unit* vectors ``(k, 3)``, equal weights.
 
-    The QUEST-Newton core of :func:`shipstar.attitude.quest` on the attitude profile
-    matrix, without its input preparation (shape checks, normalisation, weights): the
-    identification's vectors are unit vectors already, and this runs several times per
-    frame.  With ``C_near`` (3, 3), a rotation close to the answer (a tracking prior),
-    the problem is solved for the small rotation ``C_near^T C``: QUEST then never needs
-    its sequential rotations (which it takes when the attitude is more than ~145 deg
-    from the identity) and is ~2x faster.
+    :func:`shipstar.attitude.quest_single` (QUEST-Newton without :func:`~shipstar.
+    attitude.quest`'s input preparation: the identification's vectors are unit vectors
+    already, and this runs several times per frame).  With ``C_near`` (3, 3), a rotation
+    close to the answer (a tracking prior, or the previous fit: rotations by
+    construction), the problem is solved for the small rotation ``C_near^T C``: QUEST
+    then never needs its sequential rotations (which it takes when the attitude is more
+    than ~145 deg from the identity) and is ~2x faster.
     """
-    B = v_ref.T @ w_body
-    B *= 1.0 / w_body.shape[0]
     if C_near is None:
-        return _quest_single(B.ravel().tolist())
-    return C_near @ _quest_single((C_near.T @ B).ravel().tolist())
+        return quest_single(w_body, v_ref)
+    return C_near @ quest_single(w_body, v_ref @ C_near)
 
 
 class Prediction:

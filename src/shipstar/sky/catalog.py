@@ -125,7 +125,10 @@ class StarCatalog:
                 f"StarCatalog has duplicate HIP numbers: {_list_text(np.unique(dup))}"
             )
         order.setflags(write=False)
+        sorted_hip.setflags(write=False)
+        # made once: index_of_hip runs for every frame of a pipeline
         object.__setattr__(self, "_hip_order", order)
+        object.__setattr__(self, "_hip_sorted", sorted_hip)
 
     def __len__(self) -> int:
         return int(self.hip.shape[0])
@@ -171,7 +174,7 @@ class StarCatalog:
             Listing every HIP number that is not in the catalog.
         """
         query = _as_hip_array(hip, "HIP number").reshape(-1)
-        sorted_hip = self.hip[self._hip_order]
+        sorted_hip = self._hip_sorted
         pos = np.minimum(np.searchsorted(sorted_hip, query), max(len(self) - 1, 0))
         found = sorted_hip[pos] == query if len(self) else np.zeros(query.shape, bool)
         if not np.all(found):
@@ -180,7 +183,7 @@ class StarCatalog:
                 f"unknown HIP number{'s' if missing.size > 1 else ''} in this catalog: "
                 f"{_list_text(missing)}"
             )
-        return self._hip_order[pos].astype(np.intp)
+        return self._hip_order[pos].astype(np.intp, copy=False)
 
     def unit_icrs(self, epoch_jyear: float = CATALOG_EPOCH_JYEAR) -> np.ndarray:
         """Barycentric ICRS unit vectors ``(N, 3)`` with space motion to ``epoch_jyear``.
