@@ -3,10 +3,13 @@
 Frames: an image-level at-sea session of the seed's two sensors (``simulate-session
 --kind sea``: 1024x1024 12-bit FITS, 10 ms exposures, A2 30 ms after A1), written once to
 a temporary (or given) directory.  The chain per frame, as ``shipstar measure`` runs it
-(``pipeline.process_session``): read FITS header (DATE-OBS) and data -> extract_stars ->
+(``pipeline.process_session``): scan the FITS headers for the mid-exposure UTC
+(``shipstar._fitsio.read_fits_header``: DATE-AVG, else DATE-OBS -- the start -- plus
+EXPTIME/2), read the image (``shipstar._fitsio.read_fits_image``) -> extract_stars ->
 identify (lost-in-space on the first frame, tracking after) -> FrameContext (erfa.apco13)
 -> apparent places + per-star refraction -> QUEST attitude in the horizontal frame ->
-ship attitude; then pairing, motion compensation and both fusions.
+ship attitude; then the deck rate fit, the streak correction (frames solved again from
+mid-exposure directions), pairing, motion compensation and both fusions.
 
 Printed: the time per frame of the whole chain (header scan and fusion included), as
 frames per second of one sensor's chain on one core and of both sensors sharing one
@@ -40,14 +43,15 @@ import numpy as np  # noqa: E402
 
 REAL_SYSTEM_FPS = 10.0
 STAGES = {  # profile entry -> label
-    "read_fits_frame": "read FITS (data)",
-    "scan_frames": "read FITS headers (DATE-OBS)",
+    "read_fits_image": "read FITS (data)",
+    "scan_frames": "scan FITS headers (frame times)",
     "extract_stars": "extract stars",
     "_identify": "identify (tracking)",
     "frame_context": "FrameContext (apco13)",
     "hor": "apparent places",
     "sensor_attitude_hor": "refraction + attitude",
     "_ship": "ship attitude",
+    "correct_streaks": "streak correction",
     "build_epochs": "pairing + fusion",
 }
 
@@ -108,10 +112,10 @@ def time_sep(directory: Path):
         import sep
     except ImportError:
         return None
+    from shipstar._fitsio import read_fits_image
     from shipstar.extract import extract_stars
-    from shipstar.pipeline import read_fits_frame
 
-    images = [read_fits_frame(p)[0] for p in sorted((directory / "A1").glob("*.fits"))]
+    images = [read_fits_image(p) for p in sorted((directory / "A1").glob("*.fits"))]
     t0 = time.perf_counter()
     for img in images:
         extract_stars(img, psf_sigma_px=0.8, gain_e_per_adu=25.0)

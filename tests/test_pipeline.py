@@ -26,6 +26,7 @@ from shipstar.pipeline import (
     plot_session,
     process_sensor,
     process_session,
+    rms_arcsec,
     scan_frames,
     session_summary,
 )
@@ -416,3 +417,245 @@ def test_attitude_csv_times_are_microseconds_and_name_their_source():
             float(r["t_s"]), abs=1e-6)
         expected = "DATE-OBS+EXPTIME/2" if r["sensor"] == "A2" else "DATE-AVG"      # fused rows: A1's frame
         assert r["time_source"] == expected
+
+
+# -- times to the microsecond ---------------------------------------------------------------
+
+def test_result_times_are_microseconds():
+    """Review finding: FrameResult.utc_iso, Epoch.utc_iso and the failure times of the
+    summary were rounded to milliseconds (0.5 ms at 4 deg/s is 7'').  A2 30.4 ms late
+    keeps its 0.4 ms everywhere."""
+    spec, cf = _sea(offset_s=0.0304, duration_s=0.3)
+    track, weather, _ = _tables(spec)
+    frames = _frames(cf, spec)
+    bad = frames[1][1]
+    frames[1][1] = Frame.from_centroids(bad.utc_jd1, bad.utc_jd2, bad.xy_px[:1], bad.hip[:1], bad.label)
+    res = process_session(_true_configs(spec), frames, track, weather)
+    assert [fr.utc_iso for fr in res.frames_of("A2")] == ["2013-03-15T12:16:00.030400Z", "2013-03-15T12:16:00.130400Z",
+                                                          "2013-03-15T12:16:00.230400Z"]
+    assert res.epochs[1].utc_iso == "2013-03-15T12:16:00.100000Z"
+    failure = session_summary(res)["sensors"]["A2"]["failures"][0]
+    assert failure == {"frame": bad.label, "time_utc": "2013-03-15T12:16:00.130400Z", "reason": failure["reason"]}
+    j1, j2 = spec.utc_jd(0.0)
+    short = Track.from_arrays([j1, j1], [j2, j2 + 0.02 / DAY_S], [31.9, 31.9], [120.3, 120.3])
+    with pytest.raises(ShipstarError, match=r"frame time 2013-03-15T12:16:00\.030400Z is outside the track "
+                                            r"\(2013-03-15T12:16:00\.000000Z to 2013-03-15T12:16:00\.020000Z\)"):
+        short.site(*spec.utc_jd(0.0304))
+
+
+# -- streak centroids: time average over the exposure -> mid-exposure ---------------------
+
+def _alpha_deck(motion, t, h=1e-3):
+    """True deck angular acceleration (deck axes), central difference of the true rate."""
+    return (motion.omega_deck_rad_per_s(t + h) - motion.omega_deck_rad_per_s(t - h)) / (2 * h)
+
+
+def _predicted_bias_arcsec(motion, t, exposure_s):
+    """Heading/pitch/roll error of an attitude solved from time-averaged directions tagged
+    with mid-exposure: the deck turned by +alpha T^2 / 24 (docs/simulation.md), from the
+    true motion alone (scipy's rotation vector -> matrix)."""
+    from scipy.spatial.transform import Rotation
+
+    C = motion.C_hor_from_deck(t)
+    turned = C @ Rotation.from_rotvec(_alpha_deck(motion, t) * exposure_s ** 2 / 24).as_matrix()
+    a0 = np.array(F.ship_angles_from_C_hor_from_deck(C))
+    a1 = np.array(F.ship_angles_from_C_hor_from_deck(turned))
+    return F.wrap_pi(a1 - a0) * RAD2ASEC
+
+
+def _time_averaged_frames(spec, cf, exposure_s):
+    """Centroid-level frames whose centroids are the stars' time-averaged images over the
+    exposure (the renderer's true paths, ``exposure_path_px``, averaged piece by piece with
+    ``streak_sources``' Simpson centres), plus the same noise as ``cf``."""
+    from shipstar.simulate._motion import exposure_offsets_s, exposure_path_px, streak_sources
+
+    tau = exposure_offsets_s(exposure_s)
+    out = []
+    for s in spec.sensors:
+        frames = []
+        for f in cf[s.name]:
+            v_hor = s.camera.unproject(f.xy_true_px) @ f.C_hor_from_sensor.T
+            path = exposure_path_px(s.camera, v_hor, spec.motion.C_hor_from_deck(f.t_s + tau) @ s.C_deck_from_sensor,
+                                    tau)
+            centres = streak_sources(path, np.ones(len(v_hor)))[0].reshape(len(v_hor), -1, 2)
+            frames.append(Frame.from_centroids(f.utc_jd1, f.utc_jd2, centres.mean(axis=1) + (f.xy_px - f.xy_true_px),
+                                               f.hip, f"{s.name}_{f.index:03d}", exposure_s=exposure_s))
+        out.append(frames)
+    return out
+
+
+def _session_t(spec, epoch):
+    """Seconds of an epoch since the simulated session's start."""
+    j1, j2 = spec.utc_jd(0.0)
+    return ((epoch.utc_jd1 - j1) + (epoch.utc_jd2 - j2)) * DAY_S
+
+
+def _joint_errors(res, truth):
+    from shipstar.pipeline import attitude_errors_arcsec, method_series
+
+    return attitude_errors_arcsec(method_series(res, "joint"), truth)
+
+
+def test_deck_acceleration_from_noise_free_attitudes():
+    """DeckRate.alpha_at, the derivative of the rate fit, is the deck's angular acceleration
+    (sea state: up to 3.8 deg/s^2); 1e-3 rad/s^2 would move an 80 ms streak by 0.002''."""
+    m = sea_session().motion
+    t1 = np.arange(0, 4, 0.1)
+    cov = np.tile(np.eye(3) * (1e-6) ** 2, (len(t1), 1, 1))
+    rate = estimate_deck_rate([(t1, m.C_hor_from_deck(t1), cov), (t1 + 0.03, m.C_hor_from_deck(t1 + 0.03), cov)])
+    peak = max(np.linalg.norm(_alpha_deck(m, t)) for t in np.arange(0, 4, 0.05))
+    assert peak > 3.0 * DEG2RAD
+    for t in (0.0, 1.0, 2.0, 2.37, 3.9):
+        np.testing.assert_allclose(rate.alpha_at(t), _alpha_deck(m, t), atol=1e-3)
+    one = estimate_deck_rate([(t1[:2], m.C_hor_from_deck(t1[:2]), cov[:2])])
+    np.testing.assert_array_equal(one.alpha_at(1.0), np.zeros(3))
+    np.testing.assert_array_equal(estimate_deck_rate([]).alpha_at(1.0), np.zeros(3))
+
+
+def test_mid_exposure_vectors_undo_the_time_average():
+    """Sign check on the renderer's geometry: at t = 2 s of the sea session (peak roll
+    acceleration) an 80 ms exposure's time-averaged directions (a 4000-point average of the
+    true path) lie ~2'' from the mid-exposure ones; the correction from the true rate and
+    acceleration brings them back to < 0.01'', and the opposite sign would double the error."""
+    from shipstar.pipeline._exposure import exposure_mean_offset, mid_exposure_vectors
+
+    spec = sea_session()
+    s, t, T = spec.sensor("A1"), 2.0, 0.08
+    C_ds = s.C_deck_from_sensor
+    u0 = F.unit_from_az_el(np.radians([10.0, 100.0, 200.0, 300.0]), np.radians([45.0, 38.0, 42.0, 36.0]))
+    u0 = u0 @ (spec.motion.C_hor_from_deck(t) @ C_ds)                               # stars in the sensor frame
+    v_hor = u0 @ (spec.motion.C_hor_from_deck(t) @ C_ds).T
+    tau = (np.arange(4000) + 0.5) / 4000 * T - 0.5 * T
+    C = spec.motion.C_hor_from_deck(t + tau) @ C_ds
+    mean = np.einsum("kj,nji->kni", v_hor, C).mean(axis=1)
+    mean /= np.linalg.norm(mean, axis=1)[:, None]
+    omega_s = C_ds.T @ spec.motion.omega_deck_rad_per_s(t)
+    alpha_s = C_ds.T @ _alpha_deck(spec.motion, t)
+
+    def angle_arcsec(a, b):
+        return np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.einsum("ij,ij->i", a, b)) * RAD2ASEC
+
+    before = angle_arcsec(mean, u0)
+    assert np.all(before > 1.5) and np.all(before < 3.7)
+    mid, turn = mid_exposure_vectors(mean, omega_s, alpha_s, T)
+    assert np.all(angle_arcsec(mid, u0) < 0.01)
+    np.testing.assert_allclose(turn * RAD2ASEC, before, atol=0.01)
+    wrong = mean + exposure_mean_offset(mean, omega_s, alpha_s, T)
+    assert np.all(angle_arcsec(wrong / np.linalg.norm(wrong, axis=1)[:, None], u0) > 1.9 * before)
+
+
+def test_streak_correction_at_80_ms_centroid_level():
+    """8 s of the sea session with 80 ms exposures, centroids = time averages over the true
+    paths.  Without the correction each epoch's joint attitude is off by the deck's
+    +alpha T^2 / 24 (predicted from the true motion alone; plus the curvature term, < 0.15'');
+    with it the joint RMS is back at the noise level (0.32 / 0.27 / 0.26'' with
+    instantaneous centroids), and without noise within 0.2'' of the truth."""
+    spec = sea_session(exposure_s=0.08, duration_s=8.0)
+    spec = spec.replace(sensors=(spec.sensors[0], replace(spec.sensors[1], time_offset_s=0.03)))
+    track, weather, truth = _tables(spec)
+    configs = _true_configs(spec)
+    errors = {}
+    for sigma_px in (0.0, 0.1):
+        frames = _time_averaged_frames(spec, simulate_centroids(spec.replace(centroid_sigma_px=sigma_px)), 0.08)
+        raw = process_session(configs, frames, track, weather, PipelineOptions(streak_correction=False))
+        fixed = process_session(configs, frames, track, weather)
+        errors[sigma_px] = (_joint_errors(raw, truth), _joint_errors(fixed, truth))
+    pred = np.array([_predicted_bias_arcsec(spec.motion, _session_t(spec, e), 0.08) for e in fixed.epochs])
+    assert np.max(np.abs(pred)) > 2.5
+    e_raw, e_fixed = errors[0.0]
+    assert np.max(np.abs(e_raw)) > 2.5 and np.max(np.abs(e_fixed)) < 0.2
+    np.testing.assert_allclose(e_raw, pred, atol=0.25)                   # the sign and size of the bias
+    e_raw, e_fixed = errors[0.1]
+    np.testing.assert_allclose(e_raw - e_fixed, pred, atol=0.3)
+    rms_raw, rms_fixed = rms_arcsec(e_raw), rms_arcsec(e_fixed)
+    assert rms_raw[2] > 1.5 and rms_raw[1] > 1.0
+    assert np.all(rms_fixed < 0.4)
+    np.testing.assert_allclose(rms_fixed, rms_arcsec(e_raw - pred), atol=0.05)
+    s = session_summary(fixed, truth)
+    for name in ("A1", "A2"):
+        assert s["sensors"][name]["n_streak_corrected"] == 80
+        assert 2.5 < s["sensors"][name]["max_streak_correction_arcsec"] < 3.8
+    assert session_summary(raw)["sensors"]["A1"]["n_streak_corrected"] == 0
+
+
+def test_streak_correction_on_rendered_80_ms_frames():
+    """Image level, the curved-path renderer (each star drawn along its true path during the
+    80 ms exposure) at the sea session's peak roll acceleration (t = 1.5-2.2 s): extraction,
+    identification, the deck rate from the frames and the correction.  Each epoch's joint
+    attitude moves by the predicted -alpha T^2 / 24 (within 0.2''), and the joint pitch and
+    roll RMS drop from the bias level to below 1.2''."""
+    from shipstar.simulate._session import _sensor_frame
+
+    T = 0.08
+    spec = sea_session(exposure_s=T, duration_s=2.5)
+    spec = spec.replace(sensors=(spec.sensors[0], replace(spec.sensors[1], time_offset_s=0.03)))
+    frames = [[_rendered(_sensor_frame(spec, s, k, float(t)), f"{s.name}_{k:03d}")
+               for k, t in enumerate(spec.times_s(s)) if 1.5 <= t <= 2.2] for s in spec.sensors]
+    track, weather, truth = _tables(spec)
+    configs = _true_configs(spec)
+    raw = process_session(configs, frames, track, weather, PipelineOptions(streak_correction=False))
+    fixed = process_session(configs, frames, track, weather)
+    assert all(fr.solved for frs in fixed.frames for fr in frs)
+    e_raw, e_fixed = _joint_errors(raw, truth), _joint_errors(fixed, truth)
+    ok = np.all(np.isfinite(e_raw), axis=1)
+    assert ok.sum() >= 7
+    pred = np.array([_predicted_bias_arcsec(spec.motion, _session_t(spec, e), T) for e in fixed.epochs])
+    np.testing.assert_allclose((e_raw - e_fixed)[ok], pred[ok], atol=0.2)
+    rms_raw, rms_fixed = rms_arcsec(e_raw), rms_arcsec(e_fixed)
+    assert rms_raw[2] > 2.5 and rms_fixed[2] < 1.2 and rms_fixed[1] < 1.2 < rms_raw[1]
+
+
+def _rendered(sim, label):
+    """A pipeline Frame of a rendered ``SimulatedFrame`` (its camera's exposure time)."""
+    return Frame(sim.utc_jd1, sim.utc_jd2, label, image=sim.image, exposure_s=sim.camera.exposure_s)
+
+
+def test_streak_correction_at_rest_and_without_an_exposure_time():
+    """In dock (no acceleration) the correction of noise-free frames is below 0.01'' and
+    nothing is solved again; with 0.1 px noise the fitted acceleration is noise, and the
+    correction changes the joint RMS by < 1 % (the 3-point derivative of the rate: +5 %).
+    Frames without an exposure time are never corrected."""
+    for sigma_px in (0.0, 0.1):
+        spec = dock_session(duration_s=8.0, centroid_sigma_px=sigma_px)
+        track, weather, truth = _tables(spec)
+        frames = [[replace(f, exposure_s=0.08) for f in fl] for fl in _frames(simulate_centroids(spec), spec)]
+        fixed = process_session(_true_configs(spec), frames, track, weather)
+        corrected = [fr.streak_correction_arcsec for frs in fixed.frames for fr in frs]
+        if sigma_px == 0.0:
+            assert corrected == [0.0] * 160
+            continue
+        raw = process_session(_true_configs(spec), frames, track, weather, PipelineOptions(streak_correction=False))
+        assert max(corrected) < 0.2
+        np.testing.assert_allclose(rms_arcsec(_joint_errors(fixed, truth)), rms_arcsec(_joint_errors(raw, truth)),
+                                   rtol=0.01)
+    spec, cf = _sea(duration_s=0.5)
+    track, weather, _ = _tables(spec)
+    res = process_session(_true_configs(spec), _frames(cf, spec), track, weather)
+    assert all(fr.streak_correction_arcsec == 0.0 and math.isnan(fr.exposure_s) for frs in res.frames for fr in frs)
+    with pytest.raises(ShipstarError, match="exposure_s must be >= 0"):
+        Frame.from_centroids(2456367.0, 0.0, np.zeros((3, 2)), exposure_s=-0.08)
+
+
+def test_attitude_csv_comment_lines_are_skipped_by_the_csv_reader(sea_result, tmp_path):
+    """The CSV may start with '# ' lines (EOP quality, warnings); shipstar's CSV reader and
+    astropy's (``comment="#"``) skip them, and the header row is unchanged."""
+    from shipstar.pipeline import write_attitude_csv
+    from shipstar.pipeline._tables import read_csv_table
+
+    spec, res, _ = sea_result
+    one = process_session(_true_configs(spec)[:1], [[Frame.from_centroids(f.utc_jd1, f.utc_jd2, f.xy_px, f.hip)
+                                                     for f in simulate_centroids(spec)["A1"][:3]]],
+                          *_tables(spec)[:2])
+    path = tmp_path / "att.csv"
+    write_attitude_csv(one, path, comments=["eop_quality = measured", "warning: two\nlines"])
+    lines = path.read_text().splitlines()
+    assert lines[:2] == ["# eop_quality = measured", "# warning: two lines"]
+    assert lines[2] == ",".join(ATTITUDE_COLUMNS)
+    jd1, jd2, cols = read_csv_table(path, ("heading_deg", "pitch_deg", "roll_deg"))
+    assert len(jd1) == 3
+    np.testing.assert_allclose(cols["heading_deg"], [float(r.split(",")[6]) for r in lines[3:]])
+    from astropy.table import Table
+
+    table = Table.read(path, format="ascii.csv", comment="#")
+    assert tuple(table.colnames) == ATTITUDE_COLUMNS and len(table) == 3
+    assert table.meta["comments"] == ["eop_quality = measured", "warning: two lines"]

@@ -29,8 +29,14 @@ def _assert_bad_input(proc, *fragments):
 
 
 def _rows(path):
+    """The attitude CSV's rows (its leading '#' comment lines skipped)."""
     with open(path, newline="") as fh:
-        return list(csv.DictReader(fh))
+        return list(csv.DictReader(line for line in fh if not line.startswith("#")))
+
+
+def _comments(path):
+    with open(path) as fh:
+        return [line.rstrip("\n") for line in fh if line.startswith("#")]
 
 
 def _noise_frame(path, date_obs):
@@ -80,16 +86,48 @@ def test_sea_session_two_sensors(session):
     assert all(r["solved"] == "1" for r in rows)
     assert {p.split("/")[-1] for p in summary["plots"]} == {"attitude.png", "residuals.png"}
     assert (session / "out" / "plots" / "attitude.png").stat().st_size > 10000
+    # how the times were read, in the summary and in every row (the simulator writes DATE-AVG)
+    assert summary["date_obs_is"] == "start"
+    assert summary["time_sources"] == {"A1": {"DATE-AVG": 5}, "A2": {"DATE-AVG": 5}}
+    assert all(r["time_source"] == "DATE-AVG" for r in rows)
+    # the CSV's comment header: Earth orientation and warnings, as in the summary
+    e = summary["eop"]
+    assert _comments(session / "out" / "att.csv") == [
+        "# shipstar measure: ship attitude (docs/file-formats.md)",
+        f"# eop_quality = {e['quality']}, dut1_error_s = {e['dut1_error_s']:.3g}, "
+        f"polar_motion_error_arcsec = {e['polar_motion_error_arcsec']:.3g}",
+        "# warnings: none"]
+    assert summary["warnings"] == []
+    # 10 ms exposures at sea: the streak correction is a few hundredths of an arcsecond
+    assert summary["streak_correction"] is True
+    for s in ("A1", "A2"):
+        assert summary["sensors"][s]["n_streak_corrected"] >= 3
+        assert 0.01 < summary["sensors"][s]["max_streak_correction_arcsec"] < 0.15
+
+
+def test_streak_correction_can_be_turned_off(session, tmp_path):
+    proc = _run(SEA + ["--out", str(tmp_path / "raw.csv"), "--no-streak-correction", "--json"], session)
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    assert summary["streak_correction"] is False
+    assert all(summary["sensors"][s]["n_streak_corrected"] == 0 for s in ("A1", "A2"))
 
 
 def test_dock_single_sensor_text_summary(session):
+    from shipstar.pipeline._tables import read_csv_table
+
     proc = _run(["--sensor", "A1=dock/A1", "--install", "A1.toml", *DOCK_SITE, "--out", "dock.csv"], session)
     assert proc.returncode == 0, proc.stderr
     assert "sensor A1: 3 of 3 frames solved" in proc.stdout and "written: dock.csv" in proc.stdout
+    assert "frame times (DATE-OBS = start of the exposure): A1: DATE-AVG x 3" in proc.stdout
+    assert "streak correction" not in proc.stdout                     # in dock nothing to correct
     rows = _rows(session / "dock.csv")
     assert [r["method"] for r in rows] == ["single"] * 3
     heading = np.array([float(r["heading_deg"]) for r in rows])
     assert np.all(np.abs(heading - 46.47458611) * 3600 < 5.0)
+    # shipstar's CSV reader skips the comment header
+    jd1, _, cols = read_csv_table(session / "dock.csv", ("heading_deg", "pitch_deg", "roll_deg"))
+    assert len(jd1) == 3 and np.array_equal(cols["heading_deg"], heading)
 
 
 def test_a_failing_frame_is_reported_with_exit_1(session, tmp_path):
@@ -202,6 +240,7 @@ def test_refraction_model_other_than_the_dock_calibration_is_warned(session, tmp
                                "'almanac' but this run uses 'erfa': they differ by 0.4")
     assert summary["warnings"] == [lines[0].split("warning: ", 1)[1]]
     assert summary["eop"]["quality"] == "measured" and summary["eop"]["dut1_error_s"] < 1e-3
+    assert _comments(tmp_path / "x.csv")[2:] == [f"# warning: {summary['warnings'][0]}"]
     proc = _run(["--sensor", "A1=dock/A1", "--install", str(tmp_path / "A1.toml"), *DOCK_SITE,
                  "--refraction", "almanac", "--out", str(tmp_path / "y.csv"), "--json"], session)
     assert proc.returncode == 0 and proc.stderr == "" and json.loads(proc.stdout)["warnings"] == []
@@ -301,8 +340,11 @@ def test_date_obs_is_mid_for_cameras_that_write_mid_exposure(session, tmp_path):
         fits.PrimaryHDU(data, header).writeto(path, overwrite=True)
     args = ["--sensor", f"A1={tmp_path / 'A1'}", "--install", "A1.toml", *DOCK_SITE]
     _assert_bad_input(_run([*args, "--out", str(tmp_path / "x.csv")], session), "no EXPTIME")
-    proc = _run([*args, "--date-obs-is", "mid", "--out", str(tmp_path / "mid.csv")], session)
+    proc = _run([*args, "--date-obs-is", "mid", "--out", str(tmp_path / "mid.csv"), "--json"], session)
     assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    assert summary["date_obs_is"] == "mid" and summary["time_sources"] == {"A1": {"DATE-OBS(mid)": 3}}
+    assert {r["time_source"] for r in _rows(tmp_path / "mid.csv")} == {"DATE-OBS(mid)"}
     assert _run(["--sensor", "A1=dock/A1", "--install", "A1.toml", *DOCK_SITE, "--out", str(tmp_path / "ref.csv")],
                 session).returncode == 0
     assert [r["time_utc"] for r in _rows(tmp_path / "mid.csv")] == [r["time_utc"] for r in _rows(tmp_path / "ref.csv")]

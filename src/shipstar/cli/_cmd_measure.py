@@ -34,6 +34,11 @@ EXPTIME/2 (--date-obs-is mid: DATE-OBS is already mid-exposure).  Each sensor ne
 installation file (shipstar calibrate install) naming it.  The camera is the one named
 in the installation file (a preset), unless --camera NAME=FILE gives it.
 
+A star's streak centres on its time-averaged direction, not the mid-exposure one: with
+the deck accelerating that biases each attitude by |alpha| T^2/24 (3.6'' at 80 ms at
+sea).  Each frame is corrected with the deck rate and acceleration fitted to the frames
+and its EXPTIME (--no-streak-correction: not, for comparison).
+
 The ship's position: --lat-deg/--lon-deg (fixed, with the deflection of the vertical
 --xi-arcsec/--eta-arcsec) or --track CSV (time_utc, lat_deg, lon_deg[, height_m][,
 xi_arcsec, eta_arcsec]); a levelled ship follows the plumb line, and a deflection of the
@@ -42,12 +47,14 @@ vertical left out comes back as pitch and roll bias of its size.  The weather:
 temperature_c[, relative_humidity]); docs/file-formats.md.
 
 Output CSV: one row per sensor frame (method single) and, with two or more sensors, per
-epoch of the reference sensor for the seed's fusion rule and the joint solution.
+epoch of the reference sensor for the seed's fusion rule and the joint solution, after
+'#' comment lines with the Earth orientation quality and the accuracy warnings.
 Failed frames are rows with solved=0 and their reason.  --truth CSV (time_utc,
 heading_deg, pitch_deg, roll_deg; simulated sessions) adds error RMS to the summary.
 The summary gives the Earth orientation quality (measured / predicted / extrapolated,
-UT1-UTC error) and the accuracy warnings, which are also printed one per line on stderr
-(e.g. a refraction model other than the one the installation was calibrated with).
+UT1-UTC error), how the frame times were read (date_obs_is, time_sources) and the
+accuracy warnings, which are also printed one per line on stderr (e.g. a refraction
+model other than the one the installation was calibrated with).
 Exit codes: 0 every frame solved; 1 written, but some frames failed; 2 bad input
 (including a sensor none of whose frames solved).
 """
@@ -106,6 +113,8 @@ def register(subparsers) -> argparse.ArgumentParser:
                    help="largest time offset of paired frames (s, default 0.06)")
     o.add_argument("--no-motion-compensation", action="store_true",
                    help="do not carry paired frames to the epoch time (for comparison)")
+    o.add_argument("--no-streak-correction", action="store_true",
+                   help="do not turn streak centroids (exposure averages) to mid-exposure directions (for comparison)")
     r = p.add_argument_group("output")
     r.add_argument("--out", required=True, metavar="CSV", help="attitude CSV to write")
     r.add_argument("--plots", metavar="DIR", help="write attitude.png and residuals.png here")
@@ -234,6 +243,13 @@ def _print_text(summary: dict, out: str) -> None:
     e = summary["eop"]
     print(f"Earth orientation: {e['quality']} (UT1-UTC error {e['dut1_error_s']:.2g} s, polar motion "
           f"{e['polar_motion_error_arcsec']:.2g}'')")
+    sources = "; ".join(f"{name}: " + ", ".join(f"{k} x {n}" for k, n in src.items())
+                        for name, src in summary["time_sources"].items())
+    print(f"frame times (DATE-OBS = {summary['date_obs_is']} of the exposure): {sources}")
+    for name, s in summary["sensors"].items():
+        if s["n_streak_corrected"]:
+            print(f"sensor {name}: streak correction in {s['n_streak_corrected']} frames, up to "
+                  f"{s['max_streak_correction_arcsec']:.2f}''")
     print(f"written: {out}")
 
 
@@ -253,6 +269,14 @@ def _eop(frames) -> dict:
     return eop_quality(jd1, jd2).as_dict()
 
 
+def _csv_comments(eop: dict, warnings: list) -> list:
+    """The attitude CSV's comment lines: Earth orientation quality and accuracy warnings."""
+    lines = ["shipstar measure: ship attitude (docs/file-formats.md)",
+             f"eop_quality = {eop['quality']}, dut1_error_s = {eop['dut1_error_s']:.3g}, "
+             f"polar_motion_error_arcsec = {eop['polar_motion_error_arcsec']:.3g}"]
+    return lines + ([f"warning: {w}" for w in warnings] or ["warnings: none"])
+
+
 def run(args) -> int:
     import warnings
 
@@ -263,6 +287,7 @@ def run(args) -> int:
         plot_session,
         process_session,
         session_summary,
+        time_sources,
         write_attitude_csv,
     )
     from shipstar.pipeline._progress import ProgressBar
@@ -276,20 +301,23 @@ def run(args) -> int:
         warnings.warn(message, AccuracyWarning, stacklevel=1)
     options = PipelineOptions(refraction_model=args.refraction, refraction=args.refraction_mode,
                               max_pair_offset_s=args.max_pair_offset_s,
-                              compensate_motion=not args.no_motion_compensation)
+                              compensate_motion=not args.no_motion_compensation,
+                              streak_correction=not args.no_streak_correction)
     bar = ProgressBar(True if args.progress else None)
     try:
         result = process_session(configs, frames, track, weather, options, reference=args.reference, progress=bar)
     finally:
         bar.close()
     _check_sensors_solved(result)
-    write_attitude_csv(result, args.out)
     summary = session_summary(result, truth)
     summary["out"] = str(args.out)
     summary["eop"] = _eop(frames)
+    summary["date_obs_is"] = args.date_obs_is
+    summary["time_sources"] = {name: time_sources(fr) for name, fr in zip(result.sensors, frames)}
+    summary["warnings"] = accuracy_warnings(args)
+    write_attitude_csv(result, args.out, frames, _csv_comments(summary["eop"], summary["warnings"]))
     if args.plots:
         summary["plots"] = [str(p) for p in plot_session(result, args.plots, truth)]
-    summary["warnings"] = accuracy_warnings(args)
     if args.json:
         emit_json(summary)
     else:

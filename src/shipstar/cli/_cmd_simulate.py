@@ -18,7 +18,8 @@ Attitude forms (exactly one):
   ship:            --heading-deg [--pitch-deg --ship-roll-deg] --install-az-deg
                    --install-el-deg [--install-roll-deg] with --time --lat-deg --lon-deg.
 
-Writes OUT (FITS, one uint16 HDU; DATE-OBS = mid-exposure UTC) and OUT's name with
+Writes OUT (FITS, one uint16 HDU; FITS standard times: DATE-OBS = DATE-BEG = start of the
+exposure, DATE-AVG = mid-exposure UTC = --time, DATE-END, EXPTIME) and OUT's name with
 .truth.json instead of .fits (attitude, every star's HIP number and true pixel position).
 
 examples:

@@ -2,8 +2,10 @@
 
 Public API::
 
-    Frame(utc_jd1, utc_jd2, label, path=|image=|xy_px=, hip=)      # one sensor frame
-    scan_frames(directory) -> [Frame]                               # FITS frames with DATE-OBS
+    Frame(utc_jd1, utc_jd2, label, path=|image=|xy_px=, hip=, exposure_s=)   # one sensor frame
+    scan_frames(directory, date_obs_is="start") -> [Frame]   # FITS frames at mid-exposure UTC: DATE-AVG,
+                                                             # else DATE-OBS (the start) + EXPTIME/2
+    time_sources(frames) -> {time_source: count}             # how the frames' times were found
     SensorConfig(name, camera, installation=None)
     PipelineOptions(refraction_model="erfa", refraction="per-star", ...)
     Track.fixed(lat_deg, lon_deg, height_m, xi_arcsec, eta_arcsec) / Track.read_csv(path)   # ship position
@@ -12,12 +14,16 @@ Public API::
     process_sensor(config, frames, track, weather, options) -> (FrameResult, ...)
     process_session(configs, frames_per_sensor, track, weather, options) -> SessionResult
     session_summary(result, truth=None) -> dict;  TruthTable.read_csv(path)
-    write_attitude_csv(result, path);  plot_session(result, out_dir, truth=None)
+    write_attitude_csv(result, path, frames=None, comments=());  plot_session(result, out_dir, truth=None)
+
+Streak centroids are time averages over the exposure; ``process_session`` turns them to
+the mid-exposure directions with the deck rate and acceleration fitted to the frames
+(``PipelineOptions(streak_correction=True)``, ``pipeline._exposure``).
 """
 
 from __future__ import annotations
 
-from shipstar.pipeline._frames import Frame, read_fits_frame, scan_frames
+from shipstar.pipeline._frames import Frame, read_fits_frame, scan_frames, time_sources
 from shipstar.pipeline._fusion import Epoch, sensor_roles
 from shipstar.pipeline._motion import DeckRate, estimate_deck_rate
 from shipstar.pipeline._options import PipelineOptions, SensorConfig
@@ -30,7 +36,7 @@ from shipstar.pipeline._stats import attitude_errors_arcsec, method_series, rms_
 from shipstar.pipeline._tables import EopQuality, Track, TruthTable, WeatherTable, eop_quality
 
 __all__ = [
-    "Frame", "scan_frames", "read_fits_frame",
+    "Frame", "scan_frames", "read_fits_frame", "time_sources",
     "SensorConfig", "PipelineOptions", "Track", "WeatherTable", "TruthTable", "StarLookup",
     "EopQuality", "eop_quality",
     "FrameResult", "Epoch", "SessionResult", "process_sensor", "process_session", "sensor_roles",

@@ -48,7 +48,8 @@ class Frame:
         How the time was found in the file (e.g. ``"DATE-AVG"``, ``"DATE-OBS+EXPTIME/2"``,
         ``"DATE-OBS(mid)"``); '' for frames not read from a file.
     exposure_s : float
-        Exposure time from the file (NaN when unknown).
+        Exposure time, s (from the file's ``EXPTIME``/``EXPOSURE`` or ``DATE-END`` minus the
+        start; NaN when unknown: then the streak correction is not applied).
     """
 
     utc_jd1: float
@@ -69,13 +70,19 @@ class Frame:
             raise ShipstarError(f"frame {self.label!r} has a non-finite time")
         if self.hip is not None and (self.xy_px is None or len(self.hip) != len(self.xy_px)):
             raise ShipstarError(f"frame {self.label!r}: hip must match xy_px row by row")
+        if not (math.isnan(self.exposure_s) or (math.isfinite(self.exposure_s) and self.exposure_s >= 0.0)):
+            raise ShipstarError(f"frame {self.label!r}: exposure_s must be >= 0 (or NaN: unknown), "
+                                f"got {self.exposure_s!r}")
 
     @classmethod
-    def from_centroids(cls, utc_jd1, utc_jd2, xy_px, hip=None, label: str = "") -> "Frame":
-        """A centroid-level frame (``xy_px`` (N, 2), optional known ``hip`` (N,))."""
+    def from_centroids(cls, utc_jd1, utc_jd2, xy_px, hip=None, label: str = "",
+                       exposure_s: float = math.nan) -> "Frame":
+        """A centroid-level frame (``xy_px`` (N, 2), optional known ``hip`` (N,)); with
+        ``exposure_s`` the centroids are taken as time averages over the exposure (the
+        streak correction applies)."""
         xy = np.asarray(xy_px, float).reshape(-1, 2)
         return cls(float(utc_jd1), float(utc_jd2), label, xy_px=xy,
-                   hip=None if hip is None else np.asarray(hip, np.int64).reshape(-1))
+                   hip=None if hip is None else np.asarray(hip, np.int64).reshape(-1), exposure_s=float(exposure_s))
 
     def seconds_since(self, jd1: float, jd2: float) -> float:
         """Seconds from the two-part UTC JD ``(jd1, jd2)`` to this frame."""

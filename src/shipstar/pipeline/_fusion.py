@@ -55,7 +55,7 @@ class Epoch:
     def utc_iso(self) -> str:
         from shipstar.sky.time import iso_from_utc_jd
 
-        return iso_from_utc_jd(self.utc_jd1, self.utc_jd2, 3)
+        return iso_from_utc_jd(self.utc_jd1, self.utc_jd2, 6)
 
 
 def sensor_roles(configs) -> tuple[int, int]:

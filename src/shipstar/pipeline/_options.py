@@ -47,6 +47,11 @@ class PipelineOptions:
     compensate_motion : bool
         Propagate the other sensors' frames to the reference sensor's frame time with
         the deck rate estimated from the frames (see docs/pipeline.md).
+    streak_correction : bool
+        Turn each frame's measured star directions (time averages over the exposure) to
+        the mid-exposure directions with the deck's rate and angular acceleration
+        estimated from the frames, and solve again (docs/pipeline.md, *Streaks*); needs
+        the installation and the frame's exposure time (FITS ``EXPTIME``).
     reject_outliers : bool
     max_residual_arcsec : float or None
         Absolute star residual threshold (default: 5 sigma of the frame's scatter).
@@ -61,6 +66,7 @@ class PipelineOptions:
     prior_error_deg: float = 0.5
     max_pair_offset_s: float = 0.06
     compensate_motion: bool = True
+    streak_correction: bool = True
     reject_outliers: bool = True
     max_residual_arcsec: float | None = None
 

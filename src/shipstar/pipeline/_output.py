@@ -1,7 +1,10 @@
 """The attitude CSV of a session (docs/file-formats.md): one row per frame and method.
 
 Times are written to the microsecond (``time_utc`` ISO 8601 with 6 decimals, ``t_s``
-with 6): at sea the deck turns by up to 4 deg/s, 14'' per millisecond.
+with 6): at sea the deck turns by up to 4 deg/s, 14'' per millisecond.  Optional comment
+lines (``# ...``, e.g. the Earth orientation quality and accuracy warnings) come before
+the header row; shipstar's CSV reader skips them, astropy (``Table.read(path,
+format="ascii.csv", comment="#")``) and pandas (``comment="#"``) do when told.
 """
 
 from __future__ import annotations
@@ -71,8 +74,15 @@ def _rows(result, frames=None) -> list:
     return [r[2] for r in rows]
 
 
-def attitude_csv_text(result, frames=None) -> str:
-    """The CSV text: header, then rows sorted by time (single rows first at equal times).
+def _comment_lines(comments) -> list:
+    if isinstance(comments, str):
+        comments = [comments]
+    return ["# " + " ".join(str(c).split()) + "\n" for c in comments]
+
+
+def attitude_csv_text(result, frames=None, comments=()) -> str:
+    """The CSV text: comment lines, header, then rows sorted by time (single rows first at
+    equal times).
 
     Parameters
     ----------
@@ -82,17 +92,20 @@ def attitude_csv_text(result, frames=None) -> str:
         frame's mid-exposure time was found in its file, e.g. ``DATE-OBS+EXPTIME/2``)
         fills the ``time_source`` column (fused rows: the reference sensor's frame).
         Without them the column is empty.
+    comments : iterable of str
+        Lines written first, each as ``# text`` (white space, newlines included, collapsed).
     """
     buf = io.StringIO()
+    buf.writelines(_comment_lines(comments))
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(ATTITUDE_COLUMNS)
     w.writerows(_rows(result, frames))
     return buf.getvalue()
 
 
-def write_attitude_csv(result, path, frames=None) -> None:
+def write_attitude_csv(result, path, frames=None, comments=()) -> None:
     """Write the attitude CSV (:func:`attitude_csv_text`) atomically (temporary file +
     rename): a crash never leaves a partial file under the final name."""
     from shipstar._atomic import atomic_write_text
 
-    atomic_write_text(path, attitude_csv_text(result, frames), newline="")
+    atomic_write_text(path, attitude_csv_text(result, frames, comments), newline="")

@@ -3,7 +3,8 @@
 Per frame (seed 003 steps 1-3, 5-6)::
 
     read FITS -> extract_stars -> identify (tracking after the first frame)
-      -> FrameContext (erfa.apco13 once, at DATE-OBS and the ship's position)
+      -> FrameContext (erfa.apco13 once, at the frame's mid-exposure UTC -- FITS DATE-AVG,
+         else DATE-OBS/DATE-BEG, the start, plus EXPTIME/2 -- and the ship's position)
       -> apparent places of the identified stars -> refraction (per star)
       -> C_hor_from_sensor (QUEST-Newton, outlier rejection, covariance)
       -> ship attitude with the installation (seed 003 eq. 14-17)
@@ -19,19 +20,23 @@ extrapolated in plain floats and the identification's unit vectors are reused.
 
 A frame that fails at any step gives a :class:`FrameResult` with ``solved=False`` and
 the reason; it never stops the session.
+
+:func:`resolve_frame` solves a frame again from corrected measured vectors (the streak
+correction of :mod:`shipstar.pipeline._exposure`) with the same references and weights.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from shipstar.errors import ShipstarError
 
-__all__ = ["FrameResult", "SensorProcessor", "rank_by_flux", "extrapolate_rotation"]
+__all__ = ["FrameResult", "SensorProcessor", "rank_by_flux", "extrapolate_rotation", "resolve_frame",
+           "ship_from_horizontal"]
 
 _NAN33 = np.full((3, 3), np.nan)
 #: Frames further apart than this (s) do not extrapolate the tracking prior.
@@ -89,6 +94,15 @@ def extrapolate_rotation(C_a, C_b, ratio: float) -> np.ndarray:
 
 
 @dataclass(frozen=True, eq=False)
+class _SolveInputs:
+    """What the horizontal attitude of a frame was solved from, besides the measured vectors."""
+
+    v_true_hor: np.ndarray          # (N, 3) unrefracted apparent places of the identified stars
+    sigma_rad: float | None         # known noise (PipelineOptions.centroid_sigma_px), or None
+    weights: np.ndarray | None      # (N,) relative weights from the extraction, or None
+
+
+@dataclass(frozen=True, eq=False)
 class FrameResult:
     """What one frame of one sensor gave.
 
@@ -119,6 +133,15 @@ class FrameResult:
     weather : shipstar.sky.refraction.Weather or None
     elapsed_s : float
         Processing time of the frame.
+    exposure_s : float
+        The frame's exposure time (``Frame.exposure_s``; NaN when unknown).
+    streak_correction_arcsec : float
+        Largest turn of a measured star direction by the exposure-motion correction
+        (time-averaged streak centroid -> mid-exposure direction, :mod:`shipstar.pipeline._exposure`);
+        0 when the frame was not corrected.
+    solve_inputs : _SolveInputs or None
+        The reference stars and weights the attitude was solved with (to solve it again,
+        :func:`resolve_frame`); None when the frame failed before the attitude step.
     """
 
     sensor: str
@@ -137,6 +160,9 @@ class FrameResult:
     site: object
     weather: object
     elapsed_s: float
+    exposure_s: float = math.nan
+    streak_correction_arcsec: float = 0.0
+    solve_inputs: _SolveInputs | None = field(default=None, repr=False)
 
     @property
     def C_hor_from_sensor(self) -> np.ndarray:
@@ -154,7 +180,7 @@ class FrameResult:
     def utc_iso(self) -> str:
         from shipstar.sky.time import iso_from_utc_jd
 
-        return iso_from_utc_jd(self.utc_jd1, self.utc_jd2, 3)
+        return iso_from_utc_jd(self.utc_jd1, self.utc_jd2, 6)
 
     def sensor_stars(self, C_deck_from_sensor, C_sensor_correction=None):
         """The frame's inlier stars as :class:`shipstar.ship.SensorStars` for joint fusion.
@@ -171,6 +197,51 @@ class FrameResult:
             w = w @ np.asarray(C_sensor_correction, float).T
         return SensorStars(w_sensor=w, v_hor=h.v_hor[keep], C_deck_from_sensor=C_deck_from_sensor,
                            sigma_rad=h.sigma_rad[keep])
+
+
+def _solve_hor(w_sensor, inputs: _SolveInputs, weather, options):
+    """``sensor_attitude_hor`` of measured vectors ``w_sensor`` (N, 3) against ``inputs``."""
+    from shipstar.attitude._horizontal import sensor_attitude_hor
+
+    return sensor_attitude_hor(w_sensor, inputs.v_true_hor, weather, model=options.refraction_model,
+                               refraction=options.refraction, sigma_rad=inputs.sigma_rad, weights=inputs.weights,
+                               reject_outliers=options.reject_outliers,
+                               max_residual_arcsec=options.max_residual_arcsec)
+
+
+def ship_from_horizontal(h, installation):
+    """Single-sensor ship attitude of a horizontal attitude ``h`` (failed when ``h`` is, or
+    without an installation)."""
+    from shipstar.ship import ShipAttitude, ship_attitude_from_sensor
+
+    if not h.solved:
+        return ShipAttitude.failed(h.reason, "single")
+    if installation is None:
+        return ShipAttitude.failed("no installation (dock calibration)", "single")
+    return ship_attitude_from_sensor(h.C_hor_from_sensor, installation.C_deck_from_sensor, h.covariance_rad2,
+                                     n_stars=h.n_used)
+
+
+def resolve_frame(fr: FrameResult, w_sensor, installation, options, streak_correction_arcsec: float) -> FrameResult:
+    """``fr`` solved again from corrected measured vectors ``w_sensor`` (N, 3), one per row
+    of ``fr.horizontal.w_sensor``, against the same reference stars, weights and weather.
+
+    Parameters
+    ----------
+    fr : FrameResult
+        A frame whose horizontal attitude was solved (``fr.solve_inputs`` set).
+    w_sensor : (N, 3) array
+    installation : Installation or None
+    options : PipelineOptions
+    streak_correction_arcsec : float
+        Recorded in the result (:attr:`FrameResult.streak_correction_arcsec`).
+    """
+    t0 = time.perf_counter()
+    h = _solve_hor(w_sensor, fr.solve_inputs, fr.weather, options)
+    ship = ship_from_horizontal(h, installation)
+    return replace(fr, solved=bool(h.solved), reason=h.reason, horizontal=h, ship=ship,
+                   elapsed_s=fr.elapsed_s + time.perf_counter() - t0,
+                   streak_correction_arcsec=float(streak_correction_arcsec))
 
 
 class SensorProcessor:
@@ -266,7 +337,6 @@ class SensorProcessor:
         return self._eop[key]
 
     def _horizontal(self, frame, xy, sigma_px, hip, u_sensor=None):
-        from shipstar.attitude._horizontal import sensor_attitude_hor
         from shipstar.sky.apparent import frame_context
 
         cam, opt = self.config.camera, self.options
@@ -281,21 +351,11 @@ class SensorProcessor:
         scale = cam.pixel_mm / cam.f_mm
         sigma = None if opt.centroid_sigma_px is None else opt.centroid_sigma_px * scale
         weights = None if (sigma is not None or sigma_px is None) else sigma_px[rows] ** -2.0
-        h = sensor_attitude_hor(w, v_true, weather, model=opt.refraction_model, refraction=opt.refraction,
-                                sigma_rad=sigma, weights=weights, reject_outliers=opt.reject_outliers,
-                                max_residual_arcsec=opt.max_residual_arcsec)
-        return h, site, weather, int(rows.size)
+        inputs = _SolveInputs(v_true, sigma, weights)
+        return _solve_hor(w, inputs, weather, opt), site, weather, int(rows.size), inputs
 
     def _ship(self, h):
-        from shipstar.ship import ShipAttitude, ship_attitude_from_sensor
-
-        inst = self.config.installation
-        if not h.solved:
-            return ShipAttitude.failed(h.reason, "single")
-        if inst is None:
-            return ShipAttitude.failed("no installation (dock calibration)", "single")
-        return ship_attitude_from_sensor(h.C_hor_from_sensor, inst.C_deck_from_sensor, h.covariance_rad2,
-                                         n_stars=h.n_used)
+        return ship_from_horizontal(h, self.config.installation)
 
     # -- public ----------------------------------------------------------------------------
     def process(self, frame, index: int, t_s: float) -> FrameResult:
@@ -309,10 +369,11 @@ class SensorProcessor:
             xy, sigma_px = self._measure(frame)
             n_det = len(xy)
             hip, mode, C_icrs, u_sensor = self._identify(frame, xy, t_s)
-            h, site, weather, n_id = self._horizontal(frame, xy, sigma_px, hip, u_sensor)
+            h, site, weather, n_id, inputs = self._horizontal(frame, xy, sigma_px, hip, u_sensor)
         except ShipstarError as exc:
             return FrameResult(self.config.name, index, label, frame.utc_jd1, frame.utc_jd2, False, str(exc), mode,
                                n_det, n_id, C_icrs, None, ShipAttitude.failed(str(exc), "single"), None, None,
-                               time.perf_counter() - t0)
+                               time.perf_counter() - t0, frame.exposure_s)
         return FrameResult(self.config.name, index, label, frame.utc_jd1, frame.utc_jd2, bool(h.solved), h.reason,
-                           mode, n_det, n_id, C_icrs, h, self._ship(h), site, weather, time.perf_counter() - t0)
+                           mode, n_det, n_id, C_icrs, h, self._ship(h), site, weather, time.perf_counter() - t0,
+                           frame.exposure_s, solve_inputs=inputs)

@@ -90,6 +90,9 @@ def process_sensor(config, frames, track, weather, options=None, *, start_utc_jd
                    lookup=None, progress=None) -> tuple:
     """Process one sensor's frames (in time order) into :class:`FrameResult` s.
 
+    One pass, without the streak correction (that needs the deck rate, which
+    :func:`process_session` fits to every sensor's frames).
+
     Parameters
     ----------
     config : SensorConfig
@@ -140,6 +143,12 @@ def process_session(configs, frames, track, weather, options=None, *, reference:
                     databases=None, lookup=None, progress=None) -> SessionResult:
     """Frames of one or more sensors -> per-frame and fused ship attitude over a session.
 
+    Two passes: every frame is solved (:func:`process_sensor`), the deck rate is fitted
+    to the solved frames, each frame's streak centroids are turned to mid-exposure
+    directions with that rate and its derivative and the frame solved again
+    (``options.streak_correction``, :mod:`shipstar.pipeline._exposure`), then the frames
+    are paired, carried to the epochs and fused.
+
     Parameters
     ----------
     configs : sequence of SensorConfig
@@ -167,6 +176,7 @@ def process_session(configs, frames, track, weather, options=None, *, reference:
         Duplicate sensor names, no frames, frames out of time order, frame times
         outside the track or weather tables, an unknown reference sensor.
     """
+    from shipstar.pipeline._exposure import correct_streaks
     from shipstar.pipeline._fusion import build_epochs, sensor_roles
     from shipstar.pipeline._motion import estimate_deck_rate
     from shipstar.pipeline._options import PipelineOptions
@@ -186,6 +196,8 @@ def process_session(configs, frames, track, weather, options=None, *, reference:
                for c, f in zip(configs, lists)]
     times = [np.array([fr.seconds_since(*start) for fr in f]) for f in lists]
     rate = estimate_deck_rate(_rate_samples(configs, results, times))
+    if options.streak_correction:
+        results = correct_streaks(configs, results, times, rate, options)
     epochs = build_epochs(configs, results, times, start, rate, options, reference=ref)
     fore, athw = sensor_roles(configs)
     return SessionResult(names, tuple(results), epochs, names[ref], names[fore] if fore >= 0 else "",

@@ -83,18 +83,22 @@ def _method_block(series, truth) -> dict:
 def _sensor_block(frames) -> dict:
     ok = [fr for fr in frames if fr.solved]
     failures = [{"frame": fr.label, "time_utc": fr.utc_iso, "reason": fr.reason} for fr in frames if not fr.solved]
+    corrections = [fr.streak_correction_arcsec for fr in frames if fr.streak_correction_arcsec > 0.0]
     return {
         "n_frames": len(frames), "n_solved": len(ok), "n_failed": len(frames) - len(ok),
         "median_stars_used": _num(np.median([fr.n_used for fr in ok])) if ok else None,
         "median_residual_rms_arcsec": _num(np.median([fr.rms_arcsec for fr in ok])) if ok else None,
+        "n_streak_corrected": len(corrections),
+        "max_streak_correction_arcsec": _num(max(corrections)) if corrections else 0.0,
         "failures": failures[:_MAX_LISTED_FAILURES], "failures_not_listed": max(0, len(failures) - _MAX_LISTED_FAILURES),
     }
 
 
 def session_summary(result, truth=None) -> dict:
-    """A JSON-able summary: per-sensor frame counts and failures (with reasons), and per
-    method the solved counts, median formal sigma and, with a truth table, the error
-    RMS / mean / std of (heading, pitch, roll) in arcsec."""
+    """A JSON-able summary: per-sensor frame counts, failures (with reasons and
+    microsecond times) and streak corrections, and per method the solved counts, median
+    formal sigma and, with a truth table, the error RMS / mean / std of (heading, pitch,
+    roll) in arcsec."""
     methods = {f"single:{s}": _method_block(method_series(result, "single", s), truth) for s in result.sensors}
     if len(result.sensors) > 1:
         for m in ("seed-rule", "joint"):
@@ -105,5 +109,6 @@ def session_summary(result, truth=None) -> dict:
         "fore_aft_sensor": result.fore_aft_sensor, "athwartship_sensor": result.athwartship_sensor,
         "n_epochs": len(result.epochs),
         "refraction_model": result.options.refraction_model, "refraction": result.options.refraction,
+        "streak_correction": result.options.streak_correction,
         "methods": methods,
     }

@@ -96,9 +96,9 @@ class _TimeTable:
         if not lo - _EDGE_S <= t <= hi + _EDGE_S:
             from shipstar.sky.time import iso_from_utc_jd
 
-            raise ShipstarError(f"frame time {iso_from_utc_jd(utc_jd1, utc_jd2, 3)} is outside the {self.name} "
-                                f"({iso_from_utc_jd(self.jd1_0, self.jd2_0 + lo / DAY_S, 3)} to "
-                                f"{iso_from_utc_jd(self.jd1_0, self.jd2_0 + hi / DAY_S, 3)})")
+            raise ShipstarError(f"frame time {iso_from_utc_jd(utc_jd1, utc_jd2, 6)} is outside the {self.name} "
+                                f"({iso_from_utc_jd(self.jd1_0, self.jd2_0 + lo / DAY_S, 6)} to "
+                                f"{iso_from_utc_jd(self.jd1_0, self.jd2_0 + hi / DAY_S, 6)})")
         i = int(np.clip(np.searchsorted(self.t_s, t) - 1, 0, len(self.t_s) - 2))
         f = float(np.clip((t - self.t_s[i]) / (self.t_s[i + 1] - self.t_s[i]), 0.0, 1.0))
         return i, f
