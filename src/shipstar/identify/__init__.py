@@ -6,6 +6,8 @@ Public API::
     identify_lost_in_space(stars, database, ...) -> Identification      # no prior
     identify_tracking(stars, database, C_icrs_from_sensor_prior, ...) -> Identification
     solve_image(image, camera=None, fov_deg=None, ...) -> SolveResult    # extract + identify
+    deep_match(stars, sigma_px, identification, deep_catalog(database), epoch_jyear=...)
+        -> DeepMatch                                                    # name every other star
 
 ``stars`` are either sensor-frame unit vectors ``(N, 3)`` (X boresight) or pixel
 centroids ``xy_px (N, 2)`` (with a ``camera``, or ``fov_deg`` for a pinhole camera with
@@ -22,13 +24,15 @@ import numpy as np
 
 from shipstar.errors import ShipstarError
 from shipstar.identify._database import DatabaseParams, StarDatabase, cached_database, params_for_field
+from shipstar.identify._deep import DeepMatch, deep_catalog, deep_match
 from shipstar.identify._result import Identification, failed_identification
 from shipstar.identify._solve import SolveResult, solve_image
 from shipstar.identify._tracking import tracking
 from shipstar.units import DEG2RAD
 
 __all__ = ["StarDatabase", "DatabaseParams", "Identification", "SolveResult", "build_database",
-           "identify_lost_in_space", "identify_tracking", "solve_image"]
+           "identify_lost_in_space", "identify_tracking", "solve_image",
+           "DeepMatch", "deep_match", "deep_catalog"]
 
 
 def _is_camera(obj) -> bool:
