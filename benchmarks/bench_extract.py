@@ -51,17 +51,21 @@ Run: ``python benchmarks/bench_extract.py [--frames N] [--seed S] [--rates 1,2,4
 
 from __future__ import annotations
 
-import argparse
 import os
-import time
-import warnings
 
-import numpy as np
-from scipy.special import erf
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")          # one core, as the pipeline runs (and the targets are set)
 
-from shipstar.camera import camera_preset
-from shipstar.extract import FLAG_SATURATED, extract_stars
-from shipstar.simulate._render import FalseObjects, render_frame, render_image_e, star_signal_e
+import argparse  # noqa: E402
+import time  # noqa: E402
+import warnings  # noqa: E402
+
+import numpy as np  # noqa: E402
+from scipy.special import erf  # noqa: E402
+
+from shipstar.camera import camera_preset  # noqa: E402
+from shipstar.extract import FLAG_SATURATED, extract_stars  # noqa: E402
+from shipstar.simulate._render import FalseObjects, render_frame, render_image_e, star_signal_e  # noqa: E402
 
 MATCH_PX = 1.0
 ISOLATION_PX = 12.0
@@ -306,6 +310,64 @@ def smeared_benchmark(camera, rates, frames, seed):
 
 # ---------------------------------------------------------------- rendering
 
+# ---------------------------------------------------------------- at sea
+
+def best_time(fn, repeat=3):
+    """(result, best wall time of ``repeat`` runs after a warm-up)."""
+    out = fn()
+    best = np.inf
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return out, best
+
+
+def sea_benchmark(frames, seed):
+    """Sensor A1 on the ship at sea, as the pipeline sees it: ``simulate._session.sea_session``."""
+    from shipstar.simulate._session import _sensor_frame, sea_session
+
+    spec = sea_session(seed=seed)
+    sensor = spec.sensors[0]
+    times = spec.times_s(sensor)
+    picks = np.linspace(0, min(len(times), 80) - 1, frames).round().astype(int)     # over one 8 s roll period
+    print(f"\nA1 sea frame, 10 ms exposure, ship rolling 5 deg/8 s (sea_session: pitch 2 deg/6 s, curved "
+          f"paths), {frames} frames over a roll period")
+    stats, lengths = {}, []
+    for k in picks:
+        frame = _sensor_frame(spec, sensor, int(k), float(times[k]))
+        camera, stars, image = frame.camera, frame.stars, frame.image
+        smear = stars.smear_px
+        lengths.append(float(np.median(np.hypot(*smear.T))))
+        covs, snr = map(np.array, zip(*(smeared_bound(camera, f, p, d)
+                                        for f, p, d in zip(stars.signal_e, stars.xy_px, smear))))
+        cam = dict(psf_sigma_px=camera.psf_sigma_px, gain_e_per_adu=camera.gain_e_per_adu)
+        methods = {
+            "shipstar (pipeline call: PSF, gain)": lambda: extract_stars(image, **cam).xy_px,
+            "shipstar+hint (PSF, gain, smear)": lambda: extract_stars(image, smear_px=np.median(smear, axis=0),
+                                                                      **cam).xy_px,
+            "sep (3x3 filter)": lambda: run_sep_smeared(image, None),
+        }
+        for name, fn in methods.items():
+            found, dt = best_time(fn)
+            hit, false, ratios = smeared_scores(found, stars.xy_px, smear, covs, snr)
+            st = stats.setdefault(name, dict(t=[], hit10=[], false=0, ratios=[]))
+            st["t"].append(dt)
+            st["hit10"].append(hit[snr >= 10])
+            st["false"] += false
+            st["ratios"].append(ratios)
+    print(f"median smear per frame {min(lengths):.1f}-{max(lengths):.1f} px; load average {os.getloadavg()[0]:.2f}")
+    print(f"{'method':36s} {'ms/frame':>8s} {'max ms':>7s} {'x shipstar':>10s} {'SNR>=10':>8s} {'false/fr':>8s} "
+          f"{'along/bd':>8s} {'across/bd':>9s}")
+    t_ship = np.median(next(iter(stats.values()))["t"])
+    for name, st in stats.items():
+        r = np.concatenate(st["ratios"])
+        rms = np.sqrt(np.mean(r ** 2, axis=0)) if len(r) else (np.nan, np.nan)
+        t = np.median(st["t"])
+        print(f"{name:36s} {1e3 * t:8.1f} {1e3 * max(st['t']):7.1f} {t / t_ship:10.2f} "
+              f"{np.mean(np.concatenate(st['hit10'])):8.3f} {st['false'] / frames:8.2f} {rms[0]:8.2f} {rms[1]:9.2f}")
+
+
 def render_brute_force(camera, xy, signal, rng, smear_px=None):
     """The plain numpy chain on every pixel: Poisson of the expected image, read noise, ADC."""
     bg = (camera.sky_e_per_px_per_s + camera.dark_e_per_s) * camera.exposure_s
@@ -338,22 +400,10 @@ def render_benchmark(camera, frames, seed):
         print(f"{rate:5.1f} {1e3 * fast:16.1f} {1e3 * brute:15.1f} {brute / fast:9.1f}")
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=10)
-    parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--rates", default="1,2,4",
-                        help="comma-separated angular rates (deg/s) of the smeared frames ('' to skip)")
-    parser.add_argument("--smeared-frames", type=int, default=3, help="frames per rate")
-    parser.add_argument("--real", default="/work/shared/real-images",
-                        help="folder of real JPEG frames to compare with cedar-solve (skipped if absent)")
-    args = parser.parse_args(argv)
-    camera = camera_preset("A1")
-    rng = np.random.default_rng(args.seed)
-    methods = {"shipstar": run_shipstar, "shipstar+cam": run_shipstar_camera, "sep": run_sep,
-               "photutils": run_photutils}
+def point_benchmark(camera, rng, methods, frames):
+    """Unsmeared A1 frames: shipstar against sep and photutils."""
     stats = {m: dict(t=[], hit=[], hit10=[], false=0, ratios=[]) for m in methods}
-    for _ in range(args.frames):
+    for _ in range(frames):
         image, xy, signal = simulate(camera, rng)
         snr = snr_of(camera, signal)
         crb = bound_px(camera, signal, xy)
@@ -369,7 +419,7 @@ def main(argv=None):
             stats[name]["hit10"].append(r["hit"][snr >= 10])
             stats[name]["false"] += r["false"]
             stats[name]["ratios"].append(r["ratios"])
-    print(f"{args.frames} frames, sensor A1 (1024x1024, 12-bit, PSF sigma {camera.psf_sigma_px} px); "
+    print(f"{frames} frames, sensor A1 (1024x1024, 12-bit, PSF sigma {camera.psf_sigma_px} px); "
           f"load average {os.getloadavg()[0]:.2f}")
     print(f"{'method':12s} {'ms/frame':>9s} {'x shipstar':>10s} {'complete':>9s} {'SNR>=10':>8s} "
           f"{'false/fr':>8s} {'RMS/bound':>9s} {'n':>5s}")
@@ -379,12 +429,34 @@ def main(argv=None):
         ratios = np.concatenate(s["ratios"])
         rms = np.sqrt(np.mean(ratios ** 2)) if len(ratios) else float("nan")
         print(f"{name:12s} {1e3 * t:9.2f} {t / t_ship:10.2f} {np.mean(np.concatenate(s['hit'])):9.3f} "
-              f"{np.mean(np.concatenate(s['hit10'])):8.3f} {s['false'] / args.frames:8.2f} {rms:9.3f} "
+              f"{np.mean(np.concatenate(s['hit10'])):8.3f} {s['false'] / frames:8.2f} {rms:9.3f} "
               f"{len(ratios):5d}")
 
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=10)
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--rates", default="1,2,4",
+                        help="comma-separated angular rates (deg/s) of the smeared frames ('' to skip)")
+    parser.add_argument("--smeared-frames", type=int, default=3, help="frames per rate")
+    parser.add_argument("--sea-frames", type=int, default=8, help="frames of the at-sea session (0 to skip)")
+    parser.add_argument("--no-render", action="store_true", help="skip the rendering benchmark")
+    parser.add_argument("--real", default="/work/shared/real-images",
+                        help="folder of real JPEG frames to compare with cedar-solve (skipped if absent)")
+    args = parser.parse_args(argv)
+    camera = camera_preset("A1")
+    rng = np.random.default_rng(args.seed)
+    methods = {"shipstar": run_shipstar, "shipstar+cam": run_shipstar_camera, "sep": run_sep,
+               "photutils": run_photutils}
+    if args.frames > 0:
+        point_benchmark(camera, rng, methods, args.frames)
     if args.rates:
         smeared_benchmark(camera, [float(r) for r in args.rates.split(",")], args.smeared_frames, args.seed)
-    render_benchmark(camera, max(3, args.frames // 2), args.seed)
+    if args.sea_frames > 0:
+        sea_benchmark(args.sea_frames, args.seed)
+    if not args.no_render:
+        render_benchmark(camera, max(3, args.frames // 2), args.seed)
     if args.real and os.path.isdir(args.real):
         real_images(args.real)
 

@@ -228,12 +228,61 @@ def test_bad_options_raise(kwargs, match_text):
         extract_stars(np.zeros((64, 64), dtype=np.uint16), **kwargs)
 
 
+@pytest.mark.parametrize("value", [1e39, -4e38, np.inf, np.nan])
+def test_pixel_values_beyond_the_float32_range_raise_one_line_errors(value):
+    image, _, _ = a1_scene(15, n=5)
+    image = image.astype(np.float64)
+    image[3, 7] = image[40, 2] = value                     # float32 casts and sums would overflow
+    with pytest.raises(ShipstarError, match=r"2 of 1048576 pixels non-finite .* beyond \+-3e\+38") as info:
+        extract_stars(image)
+    assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("scale", [1e30, 1e35])
+def test_huge_pixel_values_within_the_range_give_the_same_stars(scale):
+    """Values up to 3e38 are accepted: sums that could overflow float32 are done in float64
+    (pytest turns an overflow warning into an error)."""
+    image, _, _ = a1_scene(16, n=25)
+    smeared, xy, _, smear = smeared_grid_frame(1.0, seed=64)
+    for frame, kwargs in ((image, {}), (smeared, dict(smear_px=np.median(smear, axis=0), psf_sigma_px=A1.psf_sigma_px,
+                                                     gain_e_per_adu=A1.gain_e_per_adu))):
+        ref = extract_stars(frame.astype(np.float64), **kwargs)
+        if "gain_e_per_adu" in kwargs:
+            kwargs["gain_e_per_adu"] /= scale                   # the same electrons in scaled ADU
+        big = extract_stars(frame.astype(np.float64) * scale, **kwargs)
+        assert len(big) == len(ref) > 20
+        d = np.linalg.norm(big.xy_px[:, None] - ref.xy_px[None], axis=2).min(axis=1)
+        assert np.all(d < 0.05)                                 # the fits' convergence tolerance, at most
+        np.testing.assert_allclose(big.flux_adu.sum(), scale * ref.flux_adu.sum(), rtol=1e-3)
+
+
+@pytest.mark.parametrize("shape_hw", [(300, 257), (257, 300), (250, 131)])
+def test_frames_of_any_size(shape_hw):
+    """Frames whose size is not a multiple of the background mesh's blocks (used to raise in
+    the candidate threshold, or to leave its last rows unset)."""
+    height, width = shape_hw
+    camera = A1.replace(width_px=width, height_px=height)
+    rng = np.random.default_rng(17)
+    gx, gy = np.meshgrid(np.arange(10.0, width - 10, 30.0), np.arange(10.0, height - 10, 30.0))
+    xy = np.column_stack([gx.ravel(), gy.ravel()]) + rng.uniform(-0.5, 0.5, (gx.size, 2))
+    xy = np.vstack([xy, [[width - 2.7, height - 3.2]]])    # in the last, partial block
+    image = render_frame(camera, xy, star_signal_e(camera, np.full(len(xy), 5.0)), rng, hot_pixel_fraction=0.0)
+    result = extract_stars(image)
+    j, ok = match(result.xy_px, xy)
+    assert ok.all() and len(set(j)) == len(result) == len(xy)
+
+
 def test_big_endian_and_float_frames_give_the_same_stars():
     image, xy, _ = a1_scene(13, n=10)
     ref = extract_stars(image)
     for variant in (image.astype(">u2"), image.astype(np.float32), image.astype(np.int32)):
         other = extract_stars(variant, saturation_adu=4095)
         np.testing.assert_allclose(other.xy_px, ref.xy_px, atol=1e-6)
+    # a float frame in steps of 1/4096 (normalised to 0..1): its step is the quantum (it was
+    # taken as continuous, and blocks whose samples mostly share one value got zero noise)
+    scaled = extract_stars(image / 4096.0, saturation_adu=4095 / 4096)
+    np.testing.assert_allclose(scaled.xy_px, ref.xy_px, atol=1e-6)
+    assert scaled.noise_adu * 4096 == pytest.approx(ref.noise_adu, rel=1e-9)
 
 
 # ---------------------------------------------------------------- reading files
@@ -454,6 +503,46 @@ def test_smeared_stars_are_complete_unbiased_and_near_the_cramer_rao_bound(rate_
         assert abs(math.atan2(est[1], est[0]) - math.atan2(true[1], true[0])) < math.radians(2.0)   # field rotation: +-6 deg
     elif rate_deg_s == 0.0:
         assert np.all(result.smear_px == 0.0)
+
+
+def test_line_filter_is_the_sum_along_the_digital_line():
+    """The line filter (flattened shifts, taps taken in pairs) against the plain sum over its taps."""
+    from shipstar.extract._matched import LineFilter, line_filter
+
+    rng = np.random.default_rng(18)
+    height, width, fill = 61, 83, 100.0
+    image = rng.normal(fill, 5.0, (height, width))
+    patch = (np.array([5 * width + 7, 30 * width + 40, height * width - 1]), np.array([90.0, 95.0, 99.0]))
+    patched = image.copy()
+    patched.reshape(-1)[patch[0]] = patch[1]
+    pad = 50
+    padded = np.pad(patched, pad, constant_values=fill)
+    for smear in [(6.0, 2.0), (-3.0, 25.0), (24.0, -24.0), (0.0, 1.6), (40.0, 3.0), (-2.0, -17.0)]:
+        for across in (0, 1, 2):
+            lf = LineFilter(smear, across)
+            minor = np.array([0, 1]) if lf.major == 0 else np.array([1, 0])     # (x, y) step across
+            ref = np.zeros((height, width))
+            for ox, oy in lf.offsets:
+                for a in range(-across, across + 1):
+                    dx, dy = np.array([ox, oy]) + a * minor
+                    ref += padded[pad + dy:pad + dy + height, pad + dx:pad + dx + width]
+            got = line_filter(image, fill, lf, patch)
+            assert got.shape == (height, width) and lf.taps == len(lf.offsets) * (2 * across + 1)
+            np.testing.assert_allclose(got, ref, rtol=1e-6, err_msg=f"smear {smear}, across {across}")
+
+
+def test_work_arrays_kept_between_frames_do_not_leak_into_results():
+    """The line filter and the fits reuse per-thread work arrays: a frame of another size or
+    with other stars in between must not change a frame's result."""
+    image, xy, signal, smear = smeared_grid_frame(2.0, seed=65)
+    kwargs = dict(smear_px=np.median(smear, axis=0), psf_sigma_px=A1.psf_sigma_px, gain_e_per_adu=A1.gain_e_per_adu)
+    first = extract_stars(image, **kwargs)
+    extract_stars(image[100:400, 50:700], **kwargs)                       # smaller: views of the same buffers
+    extract_stars(smeared_grid_frame(4.0, seed=66)[0], smear_px=(20.0, 15.0))   # longer smear, more stars
+    again = extract_stars(image, **kwargs)
+    np.testing.assert_array_equal(again.xy_px, first.xy_px)
+    np.testing.assert_array_equal(again.xy_cov_px2, first.xy_cov_px2)
+    np.testing.assert_array_equal(again.flags, first.flags)
 
 
 def test_smear_hints_short_hints_and_bad_hints():

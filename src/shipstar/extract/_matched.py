@@ -28,7 +28,8 @@ from dataclasses import replace
 import numpy as np
 
 from shipstar.extract._background import Mesh, estimate_mesh
-from shipstar.extract._detect import candidate_pixels, components, local_maxima
+from shipstar.extract._detect import candidate_pixels, components, local_maxima, sum_dtype
+from shipstar.extract._scratch import scratch
 
 __all__ = ["LineFilter", "line_filter", "detect_streaks", "EXTENT_FACTOR"]
 
@@ -68,29 +69,70 @@ class LineFilter:
         return int(np.abs(self.offsets).max()) + self.across_px
 
 
-def line_filter(image, fill_value: float, lf: LineFilter) -> np.ndarray:
-    """S (H, W) float32: the sum of the ``lf.taps`` pixels of the line filter around each pixel.
+def line_filter(image, fill_value: float, lf: LineFilter, patch=None) -> np.ndarray:
+    """S (H, W): the sum of the ``lf.taps`` pixels of the line filter around each pixel.
 
-    Off-image pixels count as ``fill_value`` (the background).
+    float32 (float64 for values beyond 1e30, whose float32 sums could overflow).
+
+    Off-image pixels count as ``fill_value`` (the background); ``patch`` (flat indices,
+    values) replaces pixels first. The frame is padded by the filter's reach and
+    flattened, so that every tap is one add of a contiguous 1-D slice (a shift of the flat
+    index; the pad columns between rows take the garbage): ~0.1 ms a tap for a 1024 x 1024
+    frame, 5 x less than adding 2-D slices row by row. The work arrays, S included, are
+    reused from frame to frame (:mod:`shipstar.extract._scratch`): S is valid until the
+    next call in the same thread.
     """
     height, width = image.shape
-    pad = lf.reach_px
-    padded = np.pad(image.astype(np.float32, copy=False), pad, mode="constant",
-                    constant_values=np.float32(fill_value))
-    step = np.zeros(2, dtype=np.int64)
-    step[1 - lf.major] = 1                                       # across: the minor axis
-    ph, pw = padded.shape
-    a = lf.across_px
-    # across sums on the padded frame (rows/columns a .. end - a valid)
-    across = padded.copy()
-    for j in range(1, a + 1):
-        sx, sy = step * j
-        across[sy:ph - sy, sx:pw - sx] += padded[2 * sy:, 2 * sx:][:ph - 2 * sy, :pw - 2 * sx]
-        across[sy:ph - sy, sx:pw - sx] += padded[:ph - 2 * sy, :pw - 2 * sx]
-    out = np.zeros((height, width), dtype=np.float32)
-    for ox, oy in lf.offsets:
-        out += across[pad + oy:pad + oy + height, pad + ox:pad + ox + width]
-    return out
+    pad = lf.reach_px + 1
+    wp = width + 2 * pad
+    dtype = sum_dtype(image)                                       # float32 unless the values are huge
+    padded = scratch("line_filter.padded", (height + 2 * pad, wp), dtype)
+    fill = dtype(fill_value)
+    padded[:pad], padded[pad + height:], padded[pad:pad + height, :pad], padded[pad:pad + height, pad + width:] = (
+        fill, fill, fill, fill)
+    inner = padded[pad:pad + height, pad:pad + width]
+    inner[...] = image
+    if patch is not None and len(patch[0]):
+        inner[np.divmod(patch[0], width)] = patch[1]
+    flat = padded.reshape(-1)
+    n = flat.size
+    minor = 1 if lf.major == 1 else wp                             # flat step across the smear
+    lo = lf.across_px * minor
+    across = scratch("line_filter.across", (n - 2 * lo,), dtype)   # across[i - lo]: sum over i + j minor
+    if lf.across_px:
+        np.add(flat[lo - minor:n - lo - minor], flat[lo + minor:n - lo + minor], out=across)
+        across += flat[lo:n - lo]
+    else:
+        np.copyto(across, flat)
+    for j in range(2, lf.across_px + 1):
+        across += flat[lo + j * minor:n - lo + j * minor]
+        across += flat[lo - j * minor:n - lo - j * minor]
+    start = pad * wp + pad - lo                                    # pixel (0, 0) in ``across``
+    span = (height - 1) * wp + width
+    shifts = [start + int(oy) * wp + int(ox) for ox, oy in lf.offsets]
+    out = scratch("line_filter.out", (height * wp,), dtype)
+    # consecutive taps in pairs: a pair's second tap is one of <= 2 shifts from its first
+    # (one step along, 0 or 1 across), so one image per kind of pair (one pass each) halves
+    # the passes over the frame for a long smear (exactly the same sum)
+    pairs = [(shifts[k], shifts[k + 1] - shifts[k]) for k in range(0, len(shifts) - 1, 2)]
+    single = [shifts[-1]] if len(shifts) % 2 else []
+    terms = [(across, sh) for sh in single]
+    if len(pairs) >= 4:
+        m = across.size
+        for n_kind, step in enumerate(sorted({d for _, d in pairs})):
+            both = scratch(f"line_filter.pair{n_kind}", (m,), dtype)
+            i0, i1 = max(0, -step), m - max(0, step)                # both[i] = across[i] + across[i + step]
+            np.add(across[i0:i1], across[i0 + step:i1 + step], out=both[i0:i1])
+            terms += [(both, sh) for sh, d in pairs if d == step]
+    else:
+        terms += [(across, sh) for sh, d in pairs] + [(across, sh + d) for sh, d in pairs]
+    (src, shift), rest = terms[0], terms[1:]
+    np.copyto(out[:span], src[shift:shift + span])
+    for src, shift in rest:
+        out[:span] += src[shift:shift + span]
+    s_image = scratch("line_filter.s", (height, width), dtype)
+    np.copyto(s_image, out.reshape(height, wp)[:, :width])
+    return s_image
 
 
 def _filter_mesh(s_image, mesh) -> Mesh:
@@ -103,7 +145,7 @@ def _filter_mesh(s_image, mesh) -> Mesh:
     over the blocks (it comes from 64 correlated samples).
     """
     block = int(min(_S_BLOCK_PX, max(8, min(s_image.shape) // 4)))
-    mesh_s = estimate_mesh(s_image, block_px=block)
+    mesh_s = estimate_mesh(s_image, block_px=block, box_noise=False)
     noise = np.maximum(mesh_s.noise, np.median(mesh_s.noise))
     return replace(mesh_s, noise=noise, box_noise_factor=1.0)
 
@@ -143,8 +185,9 @@ def _suppress(xy, strength, lf: LineFilter, across_px: float) -> np.ndarray:
 
 
 def detect_streaks(image, mesh: Mesh, lf: LineFilter, threshold_sigma: float, segment_sigma: float,
-                   psf_sigma_px: float):
-    """Smeared stars in ``image`` (hot pixels and cosmic rays already replaced by the background).
+                   psf_sigma_px: float, patch=None):
+    """Smeared stars in ``image``, its pixels ``patch`` (flat indices, values: hot pixels and
+    cosmic rays replaced by the background) patched.
 
     Returns
     -------
@@ -154,16 +197,20 @@ def detect_streaks(image, mesh: Mesh, lf: LineFilter, threshold_sigma: float, se
     ``too_big`` (M,) bool: the component is longer or wider than one streak (a trail,
     an edge; only its strongest peak is kept).
     """
-    s_image = line_filter(image, mesh.background_adu, lf)
+    s_image = line_filter(image, mesh.background_adu, lf, patch)
     mesh_s = _filter_mesh(s_image, mesh)
     mask, idx = candidate_pixels(s_image, mesh_s, segment_sigma)
     flat = s_image.reshape(-1)
-    peaks = local_maxima(flat, idx, s_image.shape)
-    row, col = np.divmod(peaks, s_image.shape[1])
+    # the peaks that count are local maxima among the pixels >= threshold_sigma (bilinear mesh,
+    # whose values are never below the lowest block's: a cheap first cut)
+    high = idx[flat[idx] >= np.min(mesh_s.bg + threshold_sigma * mesh_s.noise)]
+    row, col = np.divmod(high, s_image.shape[1])
     bg, noise = mesh_s.at(col, row)
-    snr = (flat[peaks] - bg) / noise
-    keep = snr >= threshold_sigma
-    peaks, row, col, snr = peaks[keep], row[keep], col[keep], snr[keep]
+    snr = (flat[high] - bg) / noise
+    strong = snr >= threshold_sigma
+    peaks = local_maxima(flat, high[strong], s_image.shape)
+    pick = np.searchsorted(high, peaks)
+    row, col, snr = row[pick], col[pick], snr[pick]
     xy = np.stack([col, row], axis=1).astype(float)
     kept = _suppress(xy, snr, lf, 2.5 + psf_sigma_px)
     peaks, row, col, snr = peaks[kept], row[kept], col[kept], snr[kept]

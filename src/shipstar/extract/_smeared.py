@@ -13,12 +13,12 @@ import math
 
 import numpy as np
 
-from shipstar.extract._detect import _OFFSETS_RC, _Grid, local_maxima
+from shipstar.extract._detect import candidate_pixels, local_maxima
 from shipstar.extract._fit import _spd_inverse
 from shipstar.extract._matched import LineFilter, detect_streaks
 from shipstar.extract._point import SEGMENT_SIGMA, SHARPEST_PSF_SIGMA_PX, bright_objects, too_sharp
 from shipstar.extract._result import FLAG_EDGE, FLAG_ELONGATED, FLAG_FIT_FAILED, FLAG_SATURATED
-from shipstar.extract._smear import binned_guess, calibrate, smear_field
+from shipstar.extract._smear import FIELD_MIN_PX, binned_guess, calibrate, smear_field
 from shipstar.extract._streak import (
     BG,
     DX,
@@ -35,8 +35,14 @@ __all__ = ["sharp_pixels", "measure_streaks", "extract_smeared"]
 
 #: A hot pixel's or cosmic ray's whole connected component is masked when it has at most this many pixels.
 _SHARP_COMPONENT_PX = 9
-#: Extra window margin and path length for per-star smears that differ from the common one, px.
-_FIELD_MARGIN_PX = 2.0
+#: Window margin beyond the streak +- 3 sigma, px: the start's error along the streak.
+_MARGIN_PX = 2.0
+#: Per-star smears may differ from the common one by this fraction (field rotation, perspective):
+#: windows and the model's path allow for it.
+_FIELD_FRACTION = 0.1
+#: The fits again with the smear field start at the solutions for the common smear: a step below
+#: this fraction of a star's predicted error (Gauss-Newton from next to the optimum) ends it.
+_REFIT_CONVERGED = 0.2
 #: A line-filter peak whose fitted flux SNR is below this fraction of the detection threshold is
 #: noise (the fit is the matched filter itself, the line filter ~90 % of it).
 _FIT_SNR_FRACTION = 0.8
@@ -44,41 +50,53 @@ _FIT_SNR_FRACTION = 0.8
 _FOOTPRINT_FRACTION = 0.02
 
 
-def sharp_pixels(image, mesh, idx, labels, too_sharp):
-    """Flat indices of hot pixels and cosmic rays: significant candidate peaks that ``too_sharp``
-    rejects, with the rest of their (small) connected component, or their 3 x 3 neighbours
-    in a large one (a cosmic ray on a star).
+def sharp_pixels(image, mesh, too_sharp, segment_sigma=SEGMENT_SIGMA):
+    """Flat indices of hot pixels and cosmic rays: the local maxima >= 5 sigma that ``too_sharp``
+    rejects, with the rest of their small connected component, or their 3 x 3 neighbours
+    when they sit on something larger (a cosmic ray on a star).
 
-    ``idx``/``labels``: candidate pixels (sorted flat indices) and their components;
+    Only pixels a little below 5 sigma are gathered (``image > bg + 3.5 noise``: stars'
+    cores, hot pixels, cosmic rays), so no full segmentation of the frame is needed. A
+    peak's component is judged in the 7 x 7 box around it: pixels above ``segment_sigma``
+    on the box's border mean a large component; else the <= ``_SHARP_COMPONENT_PX`` such
+    pixels of the inner 5 x 5 are the component (a cosmic ray of 1-3 pixels in a line).
     ``too_sharp(peaks) -> (M,) bool``.
     """
     flat = image.reshape(-1)
+    height, width = image.shape
+    _, idx = candidate_pixels(image, mesh, 3.5 * mesh.box_noise_factor)
     peaks = local_maxima(flat, idx, image.shape)
-    row, col = np.divmod(peaks, image.shape[1])
+    row, col = np.divmod(peaks, width)
     bg, noise = mesh.at(col, row)
-    peaks = peaks[flat[peaks] - bg >= 5.0 * noise * mesh.box_noise_factor]
-    peaks = peaks[too_sharp(peaks)] if len(peaks) else peaks
+    keep = flat[peaks] - bg >= 5.0 * noise * mesh.box_noise_factor
+    peaks, row, col, bg, noise = peaks[keep], row[keep], col[keep], bg[keep], noise[keep]
+    sharp = too_sharp(peaks) if len(peaks) else np.zeros(0, dtype=bool)
+    peaks, row, col, bg, noise = peaks[sharp], row[sharp], col[sharp], bg[sharp], noise[sharp]
     if not len(peaks):
         return peaks
-    size = np.bincount(labels)
-    label = labels[np.searchsorted(idx, peaks)]
-    small = size[label] <= _SHARP_COMPONENT_PX
-    out = [idx[np.isin(labels, label[small])]]
-    grid = _Grid(peaks[~small], image.shape)
-    out.append(peaks[~small])
-    for dr, dc in _OFFSETS_RC:
-        nb, inside = grid.neighbour(dr, dc)
-        out.append(nb[inside])
-    return np.unique(np.concatenate(out))
+    d = np.arange(-3, 4)
+    rows, cols = row[:, None, None] + d[:, None], col[:, None, None] + d[None, :]
+    inside = (rows >= 0) & (rows < height) & (cols >= 0) & (cols < width)
+    values = flat[np.clip(rows, 0, height - 1) * width + np.clip(cols, 0, width - 1)]
+    above = inside & (values > (bg + segment_sigma * noise)[:, None, None])
+    ring = np.ones((7, 7), dtype=bool)
+    ring[1:-1, 1:-1] = False
+    core = np.zeros((7, 7), dtype=bool)
+    core[2:5, 2:5] = True
+    small = ~np.any(above & ring, axis=(1, 2)) & (np.sum(above, axis=(1, 2)) <= _SHARP_COMPONENT_PX)
+    take = np.where(small[:, None, None], above & ~ring, core & inside)
+    take[:, 3, 3] = True
+    return np.unique((rows * width + cols)[take])
 
 
-def measure_streaks(image, mesh, smear, *, threshold_sigma, segment_sigma, sigma, inv_gain, bad, saturated, fit=True):
+def measure_streaks(image, mesh, smear, *, threshold_sigma, segment_sigma, sigma, inv_gain, bad, saturated, patch=None,
+                    fit=True):
     """Detect and fit the smeared stars of a frame.
 
     Parameters
     ----------
     image : (H, W) array
-        The frame with hot pixels and cosmic rays replaced by the background.
+        The frame.
     mesh : Mesh
     smear : (2,) array
         Common smear (dx, dy), px.
@@ -88,6 +106,9 @@ def measure_streaks(image, mesh, smear, *, threshold_sigma, segment_sigma, sigma
         PSF sigma and inverse gain (0: uniform weights).
     bad, saturated : (H, W) bool
         Pixels left out of the fits (masked or saturated), and the saturated ones.
+    patch : (flat indices (K,), values (K,)), optional
+        Pixels replaced by these values (the background) for the detection: hot pixels
+        and cosmic rays (also in ``bad``).
     fit : bool
         Fit the smeared PSF (else: the centre of light of each streak's footprint).
 
@@ -97,40 +118,63 @@ def measure_streaks(image, mesh, smear, *, threshold_sigma, segment_sigma, sigma
     whose fit converged with a flux SNR below 0.8 ``threshold_sigma`` are dropped (noise).
     """
     lf = LineFilter(smear, across_px=max(1, int(round(1.2 * sigma))))
-    det = detect_streaks(image, mesh, lf, threshold_sigma, segment_sigma, sigma)
+    det = detect_streaks(image, mesh, lf, threshold_sigma, segment_sigma, sigma, patch=patch)
     if len(det["col"]) == 0:
         return dict(xy=np.zeros((0, 2)), flux=np.zeros(0), peak=np.zeros(0), npix=np.zeros(0, dtype=np.int64),
                     flags=np.zeros(0, dtype=np.int64), snr=np.zeros(0), xy_cov=np.zeros((0, 2, 2)))
     col, row = det["col"], det["row"]
     length = float(np.hypot(*smear))
-    hx, hy = streak_half_sizes(smear, sigma, max(3.0, 0.1 * length) + _FIELD_MARGIN_PX)
+    hx, hy = streak_half_sizes(smear, sigma, _MARGIN_PX + _FIELD_FRACTION * length)
     bg, noise = mesh.at(col, row)
     win = gather_streak_windows(image, col, row, hx, hy, bg, noise, bad)
-    nodes = path_points(length + 2.0 * _FIELD_MARGIN_PX, sigma)
+    nodes = path_points((1.0 + 2.0 * _FIELD_FRACTION) * length + 1.0, sigma)
     p0 = start_parameters(win, col, row, sigma, smear)
     if fit:
-        field = smear_field(win, p0, det["snr"], nodes, inv_gain, smear)
-        if field is not None:
-            p0[:, DX:] = field(p0[:, :2])
-        p, ok = fit_streaks(win, p0, nodes, inv_gain=inv_gain)
+        result = _fit_with_field(win, p0, nodes, det["snr"], inv_gain, smear)
+        p, ok, a, model = result.p, result.ok, result.normal, result.model
         height, width = image.shape
         ok &= np.all((p[:, :2] >= -0.5) & (p[:, :2] <= np.array([width, height]) - 0.5), axis=1)
-        p = np.where(ok[:, None], p, p0)
     else:
         p, ok = p0, np.zeros(len(p0), dtype=bool)
-    a, _, model, _ = streak_normal_equations(p, win, nodes, inv_gain=inv_gain)
+        a, _, model, _ = streak_normal_equations(p, win, nodes, inv_gain=inv_gain)
+    failed = np.flatnonzero(~ok)
+    if fit and len(failed):                # failed fits: the start values, and the equations there
+        p = np.where(ok[:, None], p, p0)
+        a, model = a.copy(), model.copy()
+        a[failed], _, model[failed], _ = streak_normal_equations(p[failed], win.take(failed), nodes, inv_gain=inv_gain)
     cov = _spd_inverse(a) * mesh.box_noise_factor ** 2
     excess = (model - p[:, BG, None]).reshape(win.values.shape)
     foot = excess >= _FOOTPRINT_FRACTION * excess.max(axis=(1, 2), keepdims=True)
-    flags = _flags(win, foot, saturated, ok | (not fit), det, col, row)
+    sat, inside = _window_mask(saturated, win, col, row)
+    flags = _flags(foot, sat, inside, ok | (not fit), det)
     xy = np.where(ok[:, None], p[:, :2], _centre_of_light(win, foot))
     flux = p[:, FLUX]
-    peak = np.where(foot, win.values, -np.inf).max(axis=(1, 2))
+    peak = np.where(foot & (win.valid | sat), win.values, -np.inf).max(axis=(1, 2))   # masked pixels not
     xy_cov = np.where(ok[:, None, None], cov[:, :2, :2], np.nan)
     snr = flux / np.sqrt(cov[:, FLUX, FLUX])
     keep = ~ok | (snr >= _FIT_SNR_FRACTION * threshold_sigma) if fit else np.ones(len(snr), dtype=bool)
     xy, flux, peak, flags, snr, xy_cov = xy[keep], flux[keep], peak[keep], flags[keep], snr[keep], xy_cov[keep]
     return dict(xy=xy, flux=flux, peak=peak, npix=det["npix"][keep], flags=flags, snr=snr, xy_cov=xy_cov)
+
+
+def _fit_with_field(win, p0, nodes, snr, inv_gain, smear):
+    """The streak fits (a :class:`StreakFit`): with the common smear, and for smears of
+    ``FIELD_MIN_PX`` or more once more with each star's own (the smear field of
+    :func:`smear_field`, fitted to the first fits), from where the first fits got.
+
+    ``p0``'s smear columns are set to the field too (the start values a failed fit keeps).
+    """
+    if float(np.hypot(*smear)) < FIELD_MIN_PX:
+        return fit_streaks(win, p0, nodes, inv_gain=inv_gain)
+    # the first fits are the field's start and the second fits': the slowest stars go on there
+    result = fit_streaks(win, p0, nodes, inv_gain=inv_gain, max_iterations=8, converged_fraction=_REFIT_CONVERGED)
+    field = smear_field(win, result.p, result.ok, snr, nodes, inv_gain, smear)
+    sane = np.all(np.isfinite(result.p), axis=1) & np.all(
+        np.abs(result.p[:, :2] - win.centre) <= np.array(win.shape[::-1]) / 4.0, axis=1)
+    start = np.where(sane[:, None], result.p, p0)
+    if field is not None:
+        p0[:, DX:] = start[:, DX:] = field(start[:, :2])
+    return fit_streaks(win, start, nodes, inv_gain=inv_gain, converged_fraction=_REFIT_CONVERGED)
 
 
 def _centre_of_light(win, foot):
@@ -143,15 +187,19 @@ def _centre_of_light(win, foot):
     return np.stack([win.x0 + cx, win.y0 + cy], axis=1)
 
 
-def _flags(win, foot, saturated, ok, det, col, row):
-    """Per-star flag bits of the streak path."""
-    height, width = saturated.shape
+def _window_mask(mask, win, col, row):
+    """``mask`` (H, W) bool at the window pixels (N, Wy, Wx) (False off the image), and which are on it."""
+    height, width = mask.shape
     wy, wx = win.shape
     rows = row[:, None] + np.arange(wy) - (wy - 1) // 2
     cols = col[:, None] + np.arange(wx) - (wx - 1) // 2
     inside = ((rows >= 0) & (rows < height))[:, :, None] & ((cols >= 0) & (cols < width))[:, None, :]
-    sat = saturated[np.clip(rows, 0, height - 1)[:, :, None], np.clip(cols, 0, width - 1)[:, None, :]]
-    flags = np.where(np.any(foot & sat & inside, axis=(1, 2)), FLAG_SATURATED, 0)
+    return inside & mask[np.clip(rows, 0, height - 1)[:, :, None], np.clip(cols, 0, width - 1)[:, None, :]], inside
+
+
+def _flags(foot, sat, inside, ok, det):
+    """Per-star flag bits of the streak path (``sat``: saturated window pixels, ``inside``: on the image)."""
+    flags = np.where(np.any(foot & sat, axis=(1, 2)), FLAG_SATURATED, 0)
     flags |= np.where(np.any(foot & ~inside, axis=(1, 2)), FLAG_EDGE, 0)
     flags |= np.where(ok, 0, FLAG_FIT_FAILED)
     label = det["label"]
@@ -160,20 +208,21 @@ def _flags(win, foot, saturated, ok, det, col, row):
     return flags.astype(np.int64)
 
 
-def extract_smeared(arr, mesh, idx, labels, stats, smear, sigma, inv_gain, saturation, threshold_sigma, refine):
+def extract_smeared(arr, mesh, stats, smear, sigma, inv_gain, saturation, threshold_sigma, refine):
     """Centroids of a smeared frame: the dict of :func:`measure_streaks`, and the PSF sigma used.
 
-    ``idx``/``labels``: the frame's candidate pixels and components, ``stats`` their
-    statistics (:func:`shipstar.extract._point.component_stats`); ``sigma`` / ``inv_gain``
-    None: estimated on the brightest objects (sigma 1 px when none can be fitted).
+    ``sigma`` / ``inv_gain`` None: estimated on the brightest objects, from ``stats``
+    (:func:`shipstar.extract._point.component_stats` of the frame's objects; sigma 1 px
+    when none can be fitted); ``stats`` is not used when both are given.
     """
     saturated = arr >= saturation if math.isfinite(saturation) else np.zeros(arr.shape, dtype=bool)
+    segment_sigma = min(SEGMENT_SIGMA, threshold_sigma)
 
     def sharp(psf_sigma, gain):
         def test(peaks):
             row, col = np.divmod(peaks, arr.shape[1])
             return too_sharp(arr, mesh, peaks, psf_sigma, gain or 0.0, saturated[row, col])
-        return sharp_pixels(arr, mesh, idx, labels, test)
+        return sharp_pixels(arr, mesh, test, segment_sigma)
 
     if sigma is None or inv_gain is None:
         bad = saturated.copy()
@@ -186,12 +235,10 @@ def extract_smeared(arr, mesh, idx, labels, stats, smear, sigma, inv_gain, satur
             _, sigma, inv_gain, _ = calibrate(arr, mesh, bad, col, row, smear, sigma, inv_gain, fit_smear=False)
     sigma = 1.0 if sigma is None else sigma
     masked = sharp(sigma, inv_gain)
-    work = arr.astype(np.float32)
     row, col = np.divmod(masked, arr.shape[1])
-    work.reshape(-1)[masked] = mesh.at(col, row)[0]
     bad = saturated.copy()
     bad.reshape(-1)[masked] = True
-    result = measure_streaks(work, mesh, smear, threshold_sigma=threshold_sigma,
-                             segment_sigma=min(SEGMENT_SIGMA, threshold_sigma), sigma=sigma,
-                             inv_gain=inv_gain or 0.0, bad=bad, saturated=saturated, fit=refine == "gaussian")
+    result = measure_streaks(arr, mesh, smear, threshold_sigma=threshold_sigma, segment_sigma=segment_sigma,
+                             sigma=sigma, inv_gain=inv_gain or 0.0, bad=bad, saturated=saturated,
+                             patch=(masked, mesh.at(col, row)[0]), fit=refine == "gaussian")
     return result, sigma

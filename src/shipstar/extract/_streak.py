@@ -27,9 +27,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from shipstar.extract._fit import _cho_solve, _cholesky
+from shipstar.extract._fit import spd_solve
+from shipstar.extract._scratch import scratch
 
-__all__ = ["StreakWindows", "gather_streak_windows", "streak_half_sizes", "fit_streaks",
+__all__ = ["StreakWindows", "StreakFit", "gather_streak_windows", "streak_half_sizes", "fit_streaks",
            "streak_normal_equations", "path_points", "start_parameters"]
 
 _SQRT2 = math.sqrt(2.0)
@@ -40,11 +41,17 @@ _PANEL_SIGMAS = 2.0
 _PANEL_NODES = 3
 #: Half-width, in sigmas, of the pixels each path point contributes to (flux beyond: 6e-5).
 _LOCAL_SIGMAS = 4.0
-#: Steps per pixel of the tabulated normal CDF (cubic Hermite interpolation).
-_TABLE_STEPS = 256
+#: Steps per pixel of the tabulated pixel fractions (linear interpolation).
+_TABLE_STEPS = 1024
 _SIGMA_RANGE_PX = (0.25, 20.0)
-#: A star's iterations stop when its centre moves by less than this fraction of its predicted error.
-_CONVERGED_FRACTION = 0.01
+#: Largest move of a streak's start from its line-filter peak pixel, along and across the streak, px.
+_START_ALONG_PX = 1.0
+_START_ACROSS_PX = 0.5
+#: A star's iterations stop when its centre moves by less than this fraction of its predicted error ...
+_CONVERGED_FRACTION = 0.05
+#: ... or when the step promises to lower its chi^2 by less than this (a faint streak's flat valley,
+#: where Gauss-Newton creeps by ~0.1 sigma an iteration: the rest is irrelevant to its error).
+_CONVERGED_CHI2 = 0.01
 
 #: Columns of the parameter array ``p`` (N, 7).
 X, Y, FLUX, BG, SIGMA, DX, DY = range(7)
@@ -102,65 +109,122 @@ def gather_streak_windows(image, col, row, hx, hy, bg, noise, bad=None) -> Strea
                          noise=np.asarray(noise, dtype=float), bg=np.asarray(bg, dtype=float))
 
 
+@functools.lru_cache(maxsize=4)
+def _gauss_legendre(n: int):
+    """Gauss-Legendre nodes and weights on [-1, 1] (``leggauss`` costs ~0.2 ms a call)."""
+    return np.polynomial.legendre.leggauss(n)
+
+
 def path_points(length_px: float, sigma_px: float) -> tuple[np.ndarray, np.ndarray]:
     """Nodes ``t`` (n,) in (-1/2, 1/2) and weights (n,) (sum 1) of the model's points along a path.
 
     Composite 3-point Gauss-Legendre on panels of at most ``_PANEL_SIGMAS`` sigma of path.
     """
     panels = max(1, int(math.ceil(length_px / (_PANEL_SIGMAS * sigma_px))))
-    node, weight = np.polynomial.legendre.leggauss(_PANEL_NODES)
+    node, weight = _gauss_legendre(_PANEL_NODES)
     start = np.arange(panels) / panels - 0.5
     t = (start[:, None] + (node[None, :] + 1.0) / (2.0 * panels)).ravel()
     return t, np.tile(weight / (2.0 * panels), panels)
 
 
 @functools.lru_cache(maxsize=8)
-def _cdf_table(sigma_px: float, half: int):
-    """Normal CDF at a point's local pixel edges, tabulated over its sub-pixel offset f.
+def _fraction_table(sigma_px: float):
+    """Pixel fractions of a point, tabulated over its sub-pixel offset f = c - rint(c).
 
-    Rows: f = -1/2 .. 1/2 in ``_TABLE_STEPS`` steps; columns: edges
-    ``e_j = j - half - 1/2 - f``, j = 0 .. 2 half + 1. Returns (cdf, d cdf / df).
+    Rows: f = -1/2 .. 1/2 in ``_TABLE_STEPS`` steps; columns: its local pixels
+    j = 0 .. 2 half (pixel rint(c) - half + j), half = ceil(``_LOCAL_SIGMAS`` sigma).
+    Returns (E, its row-to-row difference, dE/dc, its difference) and ``half`` (four
+    tables: a gather of a 9-value row is 4 x faster than of a 36-value one).
     """
     from scipy.special import ndtr
 
+    half = int(math.ceil(_LOCAL_SIGMAS * sigma_px))
     f = np.linspace(-0.5, 0.5, _TABLE_STEPS + 1)[:, None]
     z = (np.arange(2 * half + 2) - half - 0.5 - f) / sigma_px
-    cdf, slope = ndtr(z), -np.exp(-0.5 * z * z) / (_SQRT2PI * sigma_px)
-    for arr in (cdf, slope):
+    pdf = np.exp(-0.5 * z * z) / (_SQRT2PI * sigma_px)
+    frac, d_centre = np.diff(ndtr(z), axis=1), pdf[:, :-1] - pdf[:, 1:]
+    out = [frac, np.diff(frac, axis=0, append=frac[-1:]), d_centre, np.diff(d_centre, axis=0, append=d_centre[-1:])]
+    for arr in out:
         arr.setflags(write=False)
-    return cdf, slope
+    return out, half
 
 
-def _edge_cdf(f, sigma_px, half):
-    """CDF at the local edges (M, 2 half + 2) of points with offsets ``f`` (M,): cubic Hermite in f.
+def _tabulated_profiles(cx, cy, x0, y0, wx, wy, sigma_px, weight):
+    """E and dE/dcentre of points ``cx``, ``cy`` (N, n) on the window's columns and rows.
 
-    Error < 1e-12 (step 1/256 px): ``erf`` itself costs ~40 ns a value, this ~5 ns.
+    Returns ``ex`` (2, N, n, wx) and ``eyt`` (2, N, wy, n), the latter transposed and
+    multiplied by the points' ``weight`` (n,), as the model's products want them. One PSF
+    sigma for all: linear interpolation in a table of ``_TABLE_STEPS`` rows per pixel
+    (:func:`_fraction_table`; error < 4e-7 of a point's flux for sigma >= 0.5 px, against
+    ~40 ns a value for ``erf``). Each point's +-``_LOCAL_SIGMAS`` sigma pixels are written
+    into work arrays with ``half`` spare columns (rows) on either side, where the pixels
+    off the window land (clipped there): no masking; the results are views without them.
     """
-    cdf, slope = _cdf_table(float(sigma_px), int(half))
-    pos = (f + 0.5) * _TABLE_STEPS
-    i = np.clip(np.floor(pos).astype(np.intp), 0, _TABLE_STEPS - 1)
-    w = (pos - i)[:, None]
-    w2, w3 = w * w, w * w * w
-    d = 1.0 / _TABLE_STEPS
-    return ((2 * w3 - 3 * w2 + 1) * cdf[i] + (w3 - 2 * w2 + w) * d * slope[i]
-            + (3 * w2 - 2 * w3) * cdf[i + 1] + (w3 - w2) * d * slope[i + 1])
+    (frac, dfrac, dc, ddc), half = _fraction_table(float(sigma_px))
+    n_star, n_pt = cx.shape
+    m_pts = n_star * n_pt
+    local = np.arange(2 * half + 1)
+    out = []
+    for k, (c, first, size) in enumerate(((cx, x0, wx), (cy, y0, wy))):
+        near = np.rint(c)
+        pos = (c - near + 0.5) * _TABLE_STEPS
+        i = np.minimum(pos.astype(np.intp), _TABLE_STEPS - 1).reshape(-1)
+        w = (pos.reshape(-1) - i)[:, None]
+        padded = size + 2 * half
+        cols = np.clip((near.astype(np.intp) - first[:, None]).reshape(-1, 1) + local, 0, padded - 1)  # + half - half
+        values = np.stack([frac[i] + w * dfrac[i], dc[i] + w * ddc[i]])                  # (2, N n, 2 half + 1)
+        buf = scratch(f"streak.profile{k}", (2, m_pts * padded), float)
+        buf.fill(0.0)
+        if k == 0:                                          # (N, n, padded): row per point
+            buf[:, (np.arange(m_pts)[:, None] * padded + cols)] = values
+            out.append(buf.reshape(2, n_star, n_pt, padded)[..., half:half + size])
+        else:                                               # (N, padded, n): column per point, weighted
+            star, point = np.divmod(np.arange(m_pts), n_pt)
+            buf[:, ((star * padded)[:, None] + cols) * n_pt + point[:, None]] = values * np.tile(weight, n_star)[:, None]
+            out.append(buf.reshape(2, n_star, padded, n_pt)[:, :, half:half + size])
+    return out[0], out[1]
 
 
 def start_parameters(win, col, row, sigma, smear):
-    """Start parameters (N, 7) at the window centres: flux from the window's excess."""
-    excess = np.where(win.valid, win.values - win.bg[:, None, None], 0.0).sum(axis=(1, 2))
-    p0 = np.zeros((len(col), 7))
-    p0[:, X], p0[:, Y] = col, row
-    p0[:, FLUX] = np.maximum(excess, 10.0 * win.noise)
+    """Start parameters (N, 7): near the centre of light of each streak, its flux from the window's excess.
+
+    The centre: the peak pixel ``col, row`` moved to the first moment of the positive
+    excess over the pixels within ``1.5 sigma + 0.5`` px of the streak's segment
+    (``smear`` (2,) or (N, 2)) through it, by at most ``_START_ALONG_PX`` along the
+    streak and ``_START_ACROSS_PX`` across: a bright streak's fit then needs an
+    iteration less, and a blended neighbour cannot pull the start over to itself.
+    """
+    excess = np.where(win.valid, win.values - win.bg[:, None, None], 0.0)
+    n_star = len(col)
+    d = np.broadcast_to(np.asarray(smear, dtype=float), (n_star, 2))
+    length = np.hypot(d[:, 0], d[:, 1])
+    u = np.where(length[:, None] > 1e-9, d / np.maximum(length, 1e-9)[:, None], [1.0, 0.0])
+    wy, wx = win.shape
+    peak = np.stack([col, row], axis=1).astype(float)
+    ddx = (win.x0[:, None] + np.arange(wx) - peak[:, 0, None])[:, None, :]      # (N, 1, Wx)
+    ddy = (win.y0[:, None] + np.arange(wy) - peak[:, 1, None])[:, :, None]      # (N, Wy, 1)
+    along = ddx * u[:, 0, None, None] + ddy * u[:, 1, None, None]
+    across = ddx * u[:, 1, None, None] - ddy * u[:, 0, None, None]
+    reach = 1.5 * float(np.max(sigma)) + 0.5
+    near = np.maximum(np.abs(along) - 0.5 * length[:, None, None], 0.0) ** 2 + across ** 2 <= reach * reach
+    w = np.where(near, np.maximum(excess, 0.0), 0.0)
+    total = np.maximum(w.sum(axis=(1, 2)), 1e-300)
+    shift_along = np.clip((w * along).sum(axis=(1, 2)) / total, -_START_ALONG_PX, _START_ALONG_PX)
+    shift_across = np.clip((w * across).sum(axis=(1, 2)) / total, -_START_ACROSS_PX, _START_ACROSS_PX)
+    centre = peak + shift_along[:, None] * u + shift_across[:, None] * np.stack([u[:, 1], -u[:, 0]], axis=1)
+    p0 = np.zeros((n_star, 7))
+    p0[:, X], p0[:, Y] = centre[:, 0], centre[:, 1]
+    p0[:, FLUX] = np.maximum(excess.sum(axis=(1, 2)), 10.0 * win.noise)
     p0[:, BG] = win.bg
     p0[:, SIGMA] = sigma
-    p0[:, DX:] = smear
+    p0[:, DX:] = d
     return p0
 
 
 def _axis_profiles(centre, first, size, sigma, want_sigma):
     """Pixel fractions of points ``centre`` (N, n) in windows of ``size`` pixels from ``first`` (N,).
 
+    Per-star sigma (``erf`` on the fly; :func:`_tabulated_profiles` for a common one).
     Returns E, dE/dcentre and (if ``want_sigma``) dE/dsigma, each (N, n, size). Only
     each point's own +-``_LOCAL_SIGMAS`` sigma pixels are computed.
     """
@@ -174,10 +238,7 @@ def _axis_profiles(centre, first, size, sigma, want_sigma):
     s = sigma[:, None, None]
     z = ((near - centre)[:, :, None] - half - 0.5 + np.arange(m + 1)) / s
     pdf = np.exp(-0.5 * z * z) / (_SQRT2PI * s)
-    if want_sigma or np.ptp(sigma) > 0:
-        cdf = 0.5 * erf(z * (1.0 / _SQRT2))
-    else:
-        cdf = _edge_cdf((centre - near).ravel(), sigma[0], half).reshape(n_star, n_pt, m + 1)
+    cdf = 0.5 * erf(z * (1.0 / _SQRT2))
     parts = [np.diff(cdf, axis=2), pdf[:, :, :-1] - pdf[:, :, 1:]]
     if want_sigma:
         upd = z * pdf
@@ -194,49 +255,87 @@ def _axis_profiles(centre, first, size, sigma, want_sigma):
 
 
 def _jacobian(p, win, nodes, fit_sigma, fit_smear):
-    """Model (N, P) and transposed Jacobian (N, k, P) on the flattened windows."""
+    """Model (N, P) and transposed Jacobian (N, k, P) on the flattened windows.
+
+    The Jacobian is a work array (:mod:`shipstar.extract._scratch`): valid until the next call.
+    """
     t, w = nodes
     n_star = len(p)
     wy, wx = win.shape
     sigma = p[:, SIGMA]
     cx = p[:, X, None] + t[None, :] * p[:, DX, None]
     cy = p[:, Y, None] + t[None, :] * p[:, DY, None]
-    ex = _axis_profiles(cx, win.x0.astype(np.int64), wx, sigma, fit_sigma)
-    ey = _axis_profiles(cy, win.y0.astype(np.int64), wy, sigma, fit_sigma)
+    x0, y0 = win.x0.astype(np.intp), win.y0.astype(np.intp)
+    if fit_sigma or np.ptp(sigma) > 0:
+        ex = _axis_profiles(cx, x0, wx, sigma, fit_sigma)
+        eyt = [(e * w[None, :, None]).transpose(0, 2, 1) for e in _axis_profiles(cy, y0, wy, sigma, fit_sigma)]
+    else:
+        ex, eyt = _tabulated_profiles(cx, cy, x0, y0, wx, wy, sigma[0], w)     # eyt: (N, Wy, n), weighted
     flux = p[:, FLUX, None, None]
-    eyt = np.ascontiguousarray((ey[0] * w[None, :, None]).transpose(0, 2, 1))   # (N, Wy, n), weighted
-    both = eyt @ np.concatenate([ex[0], ex[1]], axis=2)                   # shape and d/dx in one product
     k = 4 + int(fit_sigma) + 2 * int(fit_smear)
-    jac_t = np.empty((n_star, k, wy, wx))
-    jac_t[:, 2] = both[:, :, :wx]
-    jac_t[:, 0] = flux * both[:, :, wx:]
-    jac_t[:, 1] = flux * (np.ascontiguousarray((ey[1] * w[None, :, None]).transpose(0, 2, 1)) @ ex[0])
+    jac_t = scratch("streak.jacobian", (n_star, k, wy, wx), float)
+    np.matmul(eyt[0], ex[0], out=jac_t[:, 2])                          # the shape: sum over the points
+    np.matmul(eyt[0], ex[1], out=jac_t[:, 0])
+    np.matmul(eyt[1], ex[0], out=jac_t[:, 1])
+    jac_t[:, :2] *= flux[:, None]
     jac_t[:, 3] = 1.0
     col = 4
     if fit_sigma:
-        jac_t[:, col] = flux * ((ey[2] * w[None, :, None]).transpose(0, 2, 1) @ ex[0] + eyt @ ex[2])
+        jac_t[:, col] = flux * (eyt[2] @ ex[0] + eyt[0] @ ex[2])
         col += 1
     if fit_smear:
-        jac_t[:, col] = flux * (eyt @ (t[None, :, None] * ex[1]))
-        jac_t[:, col + 1] = flux * ((ey[1] * (w * t)[None, :, None]).transpose(0, 2, 1) @ ex[0])
+        jac_t[:, col] = flux * (eyt[0] @ (t[None, :, None] * ex[1]))
+        jac_t[:, col + 1] = flux * ((eyt[1] * t[None, None, :]) @ ex[0])
     jac_t = jac_t.reshape(n_star, k, wy * wx)
     model = p[:, BG, None] + p[:, FLUX, None] * jac_t[:, 2]
     return model, jac_t
 
 
 def streak_normal_equations(p, win, nodes, *, fit_sigma=False, fit_smear=False, inv_gain=0.0):
-    """Weighted normal matrix (N, k, k), gradient (N, k), model (N, P) and Jacobian (N, k, P)."""
-    model, jac_t = _jacobian(p, win, nodes, fit_sigma, fit_smear)
-    n_star = len(p)
-    var = win.noise[:, None] ** 2 + np.maximum(model - p[:, BG, None], 0.0) * inv_gain
-    jw_t = jac_t * (win.valid.reshape(n_star, -1) / var)[:, None, :]
-    a = jw_t @ jac_t.transpose(0, 2, 1)
-    g = (jw_t @ (win.values.reshape(n_star, -1) - model)[:, :, None])[:, :, 0]
+    """Weighted normal matrix (N, k, k), gradient (N, k), model (N, P) and Jacobian (N, k, P).
+
+    The Jacobian is a work array, valid until the next evaluation in the thread.
+    """
+    a, g, model, jac_t, _ = _normal_equations(p, win, nodes, fit_sigma, fit_smear, inv_gain)
     return a, g, model, jac_t
 
 
+def _normal_equations(p, win, nodes, fit_sigma, fit_smear, inv_gain):
+    """:func:`streak_normal_equations` and the pixel variances (N, P) it weighted with."""
+    model, jac_t = _jacobian(p, win, nodes, fit_sigma, fit_smear)
+    n_star = len(p)
+    var = win.noise[:, None] ** 2 + np.maximum(model - p[:, BG, None], 0.0) * inv_gain
+    jw_t = np.multiply(jac_t, (win.valid.reshape(n_star, -1) / var)[:, None, :],
+                       out=scratch("streak.weighted", jac_t.shape, float))
+    a = jw_t @ jac_t.transpose(0, 2, 1)
+    g = (jw_t @ (win.values.reshape(n_star, -1) - model)[:, :, None])[:, :, 0]
+    return a, g, model, jac_t, var
+
+
+@dataclass(frozen=True)
+class StreakFit:
+    """Result of :func:`fit_streaks`: parameters, convergence, and the normal equations there.
+
+    Attributes
+    ----------
+    p : (N, 7) array
+        Fitted (x, y, F, b, sigma, dx, dy).
+    ok : (N,) bool
+        Converged to a finite, plausible solution.
+    normal : (N, k, k) array
+        Weighted normal matrix (Fisher information) of the free parameters at ``p``.
+    model : (N, P) array
+        Model of the flattened windows at ``p``.
+    """
+
+    p: np.ndarray
+    ok: np.ndarray
+    normal: np.ndarray
+    model: np.ndarray
+
+
 def fit_streaks(win, p0, nodes, *, fit_sigma=False, fit_smear=False, inv_gain=0.0, max_iterations=20,
-                tol_px=2e-4, converged_fraction=_CONVERGED_FRACTION, max_shift_px=None):
+                tol_px=2e-4, converged_fraction=_CONVERGED_FRACTION, max_shift_px=None) -> StreakFit:
     """Levenberg-Marquardt fit of the smeared PSF on all windows at once.
 
     Parameters
@@ -252,82 +351,108 @@ def fit_streaks(win, p0, nodes, *, fit_sigma=False, fit_smear=False, inv_gain=0.
         1 / gain (ADU per electron); 0 gives uniform weights.
     tol_px, converged_fraction : float
         A star's iterations stop when its centre moves by less than ``tol_px`` or
-        ``converged_fraction`` of its predicted error (whichever is larger).
+        ``converged_fraction`` of its predicted error (whichever is larger), or when the
+        step would lower its chi^2 by less than ``_CONVERGED_CHI2``.
     max_shift_px : (2,) array, optional
         Largest accepted distance (x, y) of the fitted centre from the window centre;
         default a quarter of the window size.
 
     Returns
     -------
-    p : (N, 7) array
-    ok : (N,) bool
-        Converged to a finite, plausible solution.
+    StreakFit
+        Its ``normal`` and ``model`` are those of the parameters before the last,
+        negligible step of each converged star.
     """
     p = np.array(p0, dtype=float)
     free = [X, Y, FLUX, BG] + ([SIGMA] if fit_sigma else []) + ([DX, DY] if fit_smear else [])
     wy, wx = win.shape
     limit = np.array([wx, wy]) / 4.0 if max_shift_px is None else np.asarray(max_shift_px, float)
-    opts = dict(fit_sigma=fit_sigma, fit_smear=fit_smear, inv_gain=inv_gain)
-    state = _LMState(p, win, nodes, opts)
+    state = _LMState(p, win, nodes, dict(fit_sigma=fit_sigma, fit_smear=fit_smear, inv_gain=inv_gain), free)
     converged = np.zeros(len(p), dtype=bool)
     active = np.arange(len(p))
     for _ in range(max_iterations):
-        step, sigma_xy = state.step(active)
-        done = np.all(np.abs(step[:, :2]) <= np.maximum(tol_px, converged_fraction * sigma_xy), axis=1)
+        if active.size == 0:
+            break
+        step, sigma = state.step(active)
+        watched = step[:, state.watched]
+        done = np.all(np.abs(watched) <= np.maximum(tol_px, converged_fraction * sigma), axis=1)
+        done |= np.sum(step * state.g[active], axis=1) <= _CONVERGED_CHI2
         trial = state.p[active]
         trial[:, free] += step
         trial[:, FLUX] = np.maximum(trial[:, FLUX], 1e-3 * np.abs(p0[active, FLUX]) + 1e-12)
         trial[:, SIGMA] = np.clip(trial[:, SIGMA], *_SIGMA_RANGE_PX)
-        state.try_(active, trial)
-        converged[active] = done
-        active = active[~done]
-        if active.size == 0:
-            break
+        # converged: the last (negligible) step is taken without evaluating the model there again
+        state.p[active[done]] = trial[done]
+        converged[active[done]] = True
+        active, trial = active[~done], trial[~done]
+        if active.size:
+            state.try_(active, trial)
     p = state.p
     ok = (converged & np.all(np.isfinite(p), axis=1)
           & np.all(np.abs(p[:, :2] - win.centre) <= limit, axis=1)
           & (p[:, SIGMA] > _SIGMA_RANGE_PX[0]) & (p[:, SIGMA] < _SIGMA_RANGE_PX[1]))
-    return p, ok
+    return StreakFit(p=p, ok=ok, normal=state.a, model=state.model)
 
 
 class _LMState:
-    """Levenberg-Marquardt bookkeeping per star: accepted parameters, their normal equations, damping."""
+    """Levenberg-Marquardt bookkeeping per star: accepted parameters, their normal equations, damping.
 
-    def __init__(self, p, win, nodes, opts):
-        self.win, self.nodes, self.opts = win, nodes, opts
+    The weights depend on the model (shot noise), so a step is judged with the weights of
+    the accepted parameters (iteratively re-weighted least squares): it is kept when it
+    does not raise chi^2 under those weights.
+    """
+
+    def __init__(self, p, win, nodes, opts, free):
+        self.win, self.nodes, self.opts, self.free = win, nodes, opts, free
         self.p = p
-        self.a, self.g, self.chi2 = self._equations(np.arange(len(p)), p)
+        self.a, self.g, self.model, _, self.var = _normal_equations(p, win, nodes, **opts)
+        self.chi2 = np.sum(self._residual2(win, self.model) / self.var, axis=1)
         self.lam = np.full(len(p), 1e-3)
         self.cap = np.maximum(0.5, 0.25 * np.hypot(p[:, DX], p[:, DY]))     # largest step of x, y
+        k = self.a.shape[1]
+        self.watched = [0, 1] + ([k - 2, k - 1] if opts["fit_smear"] else [])   # x, y (dx, dy): convergence
+        self.last = np.zeros((len(p), k))                                   # last accepted step
 
-    def _equations(self, idx, p):
-        a, g, model, _ = streak_normal_equations(p, self.win.take(idx), self.nodes, **self.opts)
-        var = self.win.noise[idx, None] ** 2 + np.maximum(model - p[:, BG, None], 0.0) * self.opts["inv_gain"]
-        r2 = (self.win.values[idx].reshape(len(idx), -1) - model) ** 2 / var
-        return a, g, np.sum(r2 * self.win.valid[idx].reshape(len(idx), -1), axis=1)
+    @staticmethod
+    def _residual2(win, model):
+        """Squared residuals (N, P) of the valid pixels."""
+        n = len(model)
+        return win.valid.reshape(n, -1) * (win.values.reshape(n, -1) - model) ** 2
 
     def step(self, idx):
-        """Damped Gauss-Newton steps (M, k) of stars ``idx`` and their predicted x, y errors (M, 2)."""
+        """Damped Gauss-Newton steps (M, k) of stars ``idx`` and the predicted errors (M, w) of
+        the ``watched`` parameters (from the damped matrix: at most a few per cent low)."""
         a = self.a[idx]
-        k = a.shape[1]
-        damped = a + self.lam[idx, None, None] * np.eye(k) * np.diagonal(a, axis1=1, axis2=2)[:, :, None]
-        low = _cholesky(damped)
-        step = _cho_solve(low, self.g[idx][:, :, None])[:, :, 0]
+        m, k = a.shape[:2]
+        diag = np.diagonal(a, axis1=1, axis2=2)
+        damped = a + (self.lam[idx, None] * diag)[:, :, None] * np.eye(k)
+        n_w = len(self.watched)
+        rhs = np.zeros((m, k, 1 + n_w))
+        rhs[:, :, 0] = self.g[idx]
+        rhs[:, self.watched, np.arange(1, n_w + 1)] = 1.0
+        sol = spd_solve(damped, rhs)
+        step = sol[:, :, 0]
+        # a faint streak's Gauss-Newton steps may alternate (x, y overshoot by a factor 1 + q,
+        # the last two steps in the ratio -q): the secant estimate of the rest is step / (1 + q)
+        last = self.last[idx, :2]
+        q = -np.sum(step[:, :2] * last, axis=1) / np.maximum(np.sum(last * last, axis=1), 1e-300)
+        step /= 1.0 + np.clip(q, 0.0, 1.0)[:, None]
         cap = self.cap[idx, None]
         step[:, :2] = np.clip(step[:, :2], -cap, cap)
         if self.opts["fit_smear"]:
             step[:, k - 2:] = np.clip(step[:, k - 2:], -2.0 * cap, 2.0 * cap)
-        unit = np.zeros((len(idx), k, 2))
-        unit[:, 0, 0] = unit[:, 1, 1] = 1.0
-        cov_xy = _cho_solve(_cholesky(a), unit)
-        return step, np.sqrt(np.abs(np.stack([cov_xy[:, 0, 0], cov_xy[:, 1, 1]], axis=1)))
+        return step, np.sqrt(np.abs(sol[:, self.watched, np.arange(1, n_w + 1)]))
 
     def try_(self, idx, trial):
         """Accept the trial parameters of the stars whose chi^2 does not grow; damp the others."""
-        a, g, chi2 = self._equations(idx, trial)
-        better = chi2 <= self.chi2[idx] * (1.0 + 1e-9) + 1e-9
+        win = self.win if len(idx) == len(self.p) else self.win.take(idx)
+        a, g, model, _, var = _normal_equations(trial, win, self.nodes, **self.opts)
+        r2 = self._residual2(win, model)
+        better = np.sum(r2 / self.var[idx], axis=1) <= self.chi2[idx] * (1.0 + 1e-9) + 1e-9
         acc = idx[better]
+        self.last[acc] = (trial[better] - self.p[acc])[:, self.free]
         self.p[acc] = trial[better]
-        self.a[acc], self.g[acc], self.chi2[acc] = a[better], g[better], chi2[better]
+        self.a[acc], self.g[acc], self.model[acc], self.var[acc] = a[better], g[better], model[better], var[better]
+        self.chi2[acc] = np.sum(r2[better] / var[better], axis=1)
         self.lam[acc] = np.maximum(self.lam[acc] * 0.1, 1e-6)
         self.lam[idx[~better]] *= 10.0
