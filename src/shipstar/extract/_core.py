@@ -28,6 +28,8 @@ MIN_SIZE_PX = 16
 MAX_SMEAR_PX = 200.0
 #: Largest pixel value accepted (magnitude, ADU): the work arrays are float32 (largest 3.4e38).
 MAX_ABS_ADU = 3e38
+#: Largest fraction of bad (non-finite or out-of-range) pixels that are masked rather than refused.
+MAX_BAD_FRACTION = 0.01
 
 
 def _prepare(image):
@@ -44,10 +46,22 @@ def _prepare(image):
         arr = arr.astype(arr.dtype.newbyteorder("="))
     arr = np.ascontiguousarray(arr)
     if arr.dtype.kind == "f" and not float(np.max(np.abs(arr))) <= MAX_ABS_ADU:      # NaN fails too
-        bad = int(np.count_nonzero(~(np.abs(arr) <= MAX_ABS_ADU)))
-        raise ShipstarError(f"image has {bad} of {arr.size} pixels non-finite (NaN, inf) or beyond "
-                            f"+-{MAX_ABS_ADU:g} ADU, the range extraction works in; replace or mask them first")
+        arr = _mask_bad_pixels(arr)
     return arr, (1.0 if arr.dtype.kind in "ui" else 0.0)
+
+
+def _mask_bad_pixels(arr):
+    """Replace a few non-finite or out-of-range pixels (masked pixels stored as NaN, a corrupt
+    value) by the median of the good ones, so one bad pixel does not cost the frame; refuse
+    a frame where more than MAX_BAD_FRACTION of the pixels are bad."""
+    bad = ~(np.abs(arr) <= MAX_ABS_ADU)
+    n_bad = int(np.count_nonzero(bad))
+    if n_bad > MAX_BAD_FRACTION * arr.size:
+        raise ShipstarError(f"image has {n_bad} of {arr.size} pixels non-finite (NaN, inf) or beyond "
+                            f"+-{MAX_ABS_ADU:g} ADU (more than {MAX_BAD_FRACTION:.0%}); replace or mask them first")
+    out = arr.copy()
+    out[bad] = np.median(arr[~bad])
+    return out
 
 
 def _saturation_level(arr, saturation_adu):
@@ -143,7 +157,8 @@ def extract_stars(image, *, threshold_sigma=5.0, max_stars=None, refine="gaussia
     ------
     ShipstarError
         Bad options, or a frame that is not 2-D numbers, smaller than 16 x 16, overexposed,
-        or has pixels non-finite or beyond +-3e38 ADU (the work arrays are float32).
+        or has more than 1 % of its pixels non-finite or beyond +-3e38 ADU (the work arrays
+        are float32); fewer such pixels are replaced by the median of the others.
     """
     _check_args(threshold_sigma, max_stars, refine, psf_sigma_px, gain_e_per_adu)
     hint = _check_smear(smear_px)
