@@ -11,13 +11,13 @@ import sys
 
 from shipstar.cli._common import (
     accuracy_warnings,
+    add_date_obs_is_argument,
+    add_refraction_arguments,
+    add_site_arguments,
+    add_weather_arguments,
     check_output_file,
-    deflection_arcsec,
     emit_json,
     finite_float,
-    fraction,
-    latitude_deg,
-    longitude_deg,
 )
 
 __all__ = ["add_install_parser", "run_install"]
@@ -47,6 +47,20 @@ Exit codes: 0 every frame solved; 1 written, but some frames failed (listed); 2 
 """
 
 
+SITE_HELPS = {
+    "lat_deg": "dock geodetic latitude (deg)",
+    "lon_deg": "dock longitude, east positive (deg)",
+    "height_m": "height above WGS84 (m, default 0)",
+    "xi_arcsec": "deflection of the vertical at the dock, north-south (arcsec, default 0)",
+    "eta_arcsec": "deflection of the vertical at the dock, east-west (arcsec, default 0)",
+}
+WEATHER_HELPS = {
+    "pressure_hpa": "air pressure at the sensor (hPa)",
+    "temperature_c": "air temperature (C)",
+    "relative_humidity": "0..1 (erfa model, default 0)",
+}
+
+
 def add_install_parser(subparsers) -> argparse.ArgumentParser:
     """Add ``install`` to the ``calibrate`` group's sub-parsers."""
     p = subparsers.add_parser(
@@ -57,26 +71,14 @@ def add_install_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--frames", required=True, metavar="DIR", help="directory of the sensor's FITS frames")
     p.add_argument("--sensor", required=True, metavar="NAME", help="sensor name, e.g. A1")
     p.add_argument("--camera", required=True, metavar="NAME|FILE", help="camera preset or camera TOML file")
-    p.add_argument("--lat-deg", required=True, type=latitude_deg, help="dock geodetic latitude (deg)")
-    p.add_argument("--lon-deg", required=True, type=longitude_deg, help="dock longitude, east positive (deg)")
-    p.add_argument("--height-m", type=finite_float, default=0.0, help="height above WGS84 (m, default 0)")
-    p.add_argument("--xi-arcsec", type=deflection_arcsec, default=0.0,
-                   help="deflection of the vertical at the dock, north-south (arcsec, default 0)")
-    p.add_argument("--eta-arcsec", type=deflection_arcsec, default=0.0,
-                   help="deflection of the vertical at the dock, east-west (arcsec, default 0)")
+    add_site_arguments(p, SITE_HELPS, required=True)
     p.add_argument("--heading-deg", required=True, type=finite_float, help="true ship heading K0 (deg)")
     p.add_argument("--pitch-deg", type=finite_float, default=0.0, help="ship pitch psi0 from the levels (deg)")
     p.add_argument("--roll-deg", type=finite_float, default=0.0, help="ship roll theta0 from the levels (deg)")
-    p.add_argument("--pressure-hpa", required=True, type=finite_float, help="air pressure at the sensor (hPa)")
-    p.add_argument("--temperature-c", required=True, type=finite_float, help="air temperature (C)")
-    p.add_argument("--relative-humidity", type=fraction, default=0.0, help="0..1 (erfa model, default 0)")
-    p.add_argument("--refraction", choices=("erfa", "almanac", "none"), default="erfa",
-                   help="refraction model (default erfa; almanac = the seeds' model)")
-    p.add_argument("--refraction-mode", choices=("per-star", "boresight"), default="per-star",
-                   help="per-star refraction (default) or the seed's ref. [9] boresight-only correction")
-    p.add_argument("--date-obs-is", choices=("start", "mid"), default="start",
-                   help="what the frames' DATE-OBS means: start of the exposure (FITS standard, default) or "
-                        "mid-exposure (cameras that write it so)")
+    add_weather_arguments(p, WEATHER_HELPS, required=True)
+    add_refraction_arguments(p, "refraction model (default erfa; almanac = the seeds' model)",
+                             "per-star refraction (default) or the seed's ref. [9] boresight-only correction")
+    add_date_obs_is_argument(p)
     p.add_argument("--session", metavar="LABEL", help="session label recorded in the file (default: DIR)")
     p.add_argument("--out", required=True, metavar="FILE.toml", help="installation file to write")
     p.add_argument("--progress", action="store_true", help="progress bar on stderr (default: only on a terminal)")

@@ -12,12 +12,12 @@ import sys
 
 from shipstar.cli._common import (
     accuracy_warnings,
+    add_date_obs_is_argument,
+    add_refraction_arguments,
+    add_site_arguments,
+    add_weather_arguments,
     check_output_file,
     emit_json,
-    finite_float,
-    fraction,
-    latitude_deg,
-    longitude_deg,
 )
 
 __all__ = ["register"]
@@ -79,6 +79,18 @@ def _group_help(parser) -> int:
     return 2
 
 
+SITE_HELPS = {
+    "lat_deg": "observing site geodetic latitude (deg)",
+    "lon_deg": "observing site longitude, east positive (deg)",
+    "height_m": "site height above WGS84 (m, default 0)",
+}
+WEATHER_HELPS = {
+    "pressure_hpa": "air pressure at the sensor (hPa)",
+    "temperature_c": "air temperature (C, default 10)",
+    "relative_humidity": "0..1 (erfa model only, default 0)",
+}
+
+
 def _add_intrinsics_parser(sub) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "intrinsics", help="focal length, principal point and distortion from star frames",
@@ -97,17 +109,12 @@ def _add_intrinsics_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--no-term-check", action="store_true",
                    help="skip the check of which distortion terms the data support (needs explicit --terms)")
     p.add_argument("--date-obs", metavar="ISO", help="UTC of frames that carry no time (ISO 8601)")
-    p.add_argument("--date-obs-is", choices=("start", "mid"), default="start",
-                   help="what FITS frames' DATE-OBS means: start of the exposure (FITS standard, default) or "
-                        "mid-exposure (cameras that write it so)")
-    p.add_argument("--lat-deg", type=latitude_deg, help="observing site geodetic latitude (deg)")
-    p.add_argument("--lon-deg", type=longitude_deg, help="observing site longitude, east positive (deg)")
-    p.add_argument("--height-m", type=finite_float, default=0.0, help="site height above WGS84 (m, default 0)")
-    p.add_argument("--pressure-hpa", type=finite_float, help="air pressure at the sensor (hPa)")
-    p.add_argument("--temperature-c", type=finite_float, help="air temperature (C, default 10)")
-    p.add_argument("--relative-humidity", type=fraction, help="0..1 (erfa model only, default 0)")
-    p.add_argument("--refraction", choices=("erfa", "almanac", "none"),
-                   help="refraction model for frames with a site (default: the file's, else erfa)")
+    add_date_obs_is_argument(p, "what FITS frames' DATE-OBS means: start of the exposure (FITS standard, "
+                                "default) or mid-exposure (cameras that write it so)")
+    add_site_arguments(p, SITE_HELPS, deflection=False)
+    add_weather_arguments(p, WEATHER_HELPS, humidity_default=None)
+    add_refraction_arguments(p, "refraction model for frames with a site (default: the file's, else erfa)",
+                             default=None)
     p.add_argument("--in-space", action="store_true",
                    help="the frames were taken above the atmosphere: no site, no refraction")
     p.add_argument("--out", required=True, metavar="FILE.toml", help="calibrated camera file to write")

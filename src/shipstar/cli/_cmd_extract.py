@@ -6,7 +6,7 @@ import argparse
 import math
 import sys
 
-from shipstar.cli._common import emit_json, finite_float
+from shipstar.cli._common import emit_json, finite_float, int_in_range
 
 EPILOG = """\
 example:
@@ -28,14 +28,7 @@ Exit status: 0 stars found, 1 no star found (the frame is readable but empty),
 """
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
+_positive_int = int_in_range(1)
 
 
 def register(subparsers) -> argparse.ArgumentParser:

@@ -7,14 +7,14 @@ import sys
 
 from shipstar.cli._common import (
     accuracy_warnings,
+    add_date_obs_is_argument,
+    add_refraction_arguments,
+    add_site_arguments,
+    add_weather_arguments,
     check_output_dir,
     check_output_file,
-    deflection_arcsec,
     emit_json,
-    finite_float,
-    fraction,
-    latitude_deg,
-    longitude_deg,
+    float_in_range,
 )
 from shipstar.errors import ShipstarError
 
@@ -67,11 +67,21 @@ def _name_value(text: str) -> tuple[str, str]:
     return name.strip(), value.strip()
 
 
-def _non_negative(text: str) -> float:
-    value = finite_float(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
-    return value
+_non_negative = float_in_range(0.0)
+
+
+SITE_HELPS = {
+    "lat_deg": "geodetic latitude (deg)",
+    "lon_deg": "longitude, east positive (deg, -180..360)",
+    "height_m": "height above WGS84 (m)",
+    "xi_arcsec": "deflection of the vertical, north-south (arcsec, default 0; with --lat-deg)",
+    "eta_arcsec": "deflection of the vertical, east-west (arcsec, default 0; with --lat-deg)",
+}
+WEATHER_HELPS = {
+    "pressure_hpa": "air pressure at the sensors (hPa)",
+    "temperature_c": "air temperature (C)",
+    "relative_humidity": "0..1 (default 0)",
+}
 
 
 def register(subparsers) -> argparse.ArgumentParser:
@@ -87,27 +97,15 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--camera", action="append", type=_name_value, default=[], metavar="NAME=FILE",
                    help="camera preset or TOML file of a sensor (default: the installation's camera preset)")
     g = p.add_argument_group("ship position (fixed, or a track)")
-    g.add_argument("--lat-deg", type=latitude_deg, help="geodetic latitude (deg)")
-    g.add_argument("--lon-deg", type=longitude_deg, help="longitude, east positive (deg, -180..360)")
-    g.add_argument("--height-m", type=finite_float, default=0.0, help="height above WGS84 (m)")
-    g.add_argument("--xi-arcsec", type=deflection_arcsec, default=None,
-                   help="deflection of the vertical, north-south (arcsec, default 0; with --lat-deg)")
-    g.add_argument("--eta-arcsec", type=deflection_arcsec, default=None,
-                   help="deflection of the vertical, east-west (arcsec, default 0; with --lat-deg)")
+    add_site_arguments(g, SITE_HELPS, deflection_default=None)
     g.add_argument("--track", metavar="CSV", help="time_utc, lat_deg, lon_deg[, height_m][, xi_arcsec, eta_arcsec]")
     w = p.add_argument_group("weather (fixed, or a table)")
-    w.add_argument("--pressure-hpa", type=finite_float, help="air pressure at the sensors (hPa)")
-    w.add_argument("--temperature-c", type=finite_float, help="air temperature (C)")
-    w.add_argument("--relative-humidity", type=fraction, default=0.0, help="0..1 (default 0)")
+    add_weather_arguments(w, WEATHER_HELPS)
     w.add_argument("--weather", metavar="CSV", help="time_utc, pressure_hpa, temperature_c[, relative_humidity]")
     o = p.add_argument_group("processing")
-    o.add_argument("--refraction", choices=("erfa", "almanac", "none"), default="erfa",
-                   help="refraction model (default erfa; almanac = the seeds')")
-    o.add_argument("--refraction-mode", choices=("per-star", "boresight"), default="per-star",
-                   help="per-star (default) or the seed's boresight-only refraction")
-    o.add_argument("--date-obs-is", choices=("start", "mid"), default="start",
-                   help="what the frames' DATE-OBS means: start of the exposure (FITS standard, default) or "
-                        "mid-exposure (cameras that write it so)")
+    add_refraction_arguments(o, "refraction model (default erfa; almanac = the seeds')",
+                             "per-star (default) or the seed's boresight-only refraction")
+    add_date_obs_is_argument(o)
     o.add_argument("--reference", metavar="NAME", help="sensor whose frame times are the epochs (default first)")
     o.add_argument("--max-pair-offset-s", type=_non_negative, default=0.06,
                    help="largest time offset of paired frames (s, default 0.06)")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from shipstar.cli._common import emit_json, finite_float, latitude_deg
+from shipstar.cli._common import emit_json, finite_float, int_in_range, latitude_deg, rng_seed
 from shipstar.errors import ShipstarError
 
 __all__ = ["register"]
@@ -31,24 +31,7 @@ examples:
 """
 
 
-def _count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if not 0 <= value <= 1000:
-        raise argparse.ArgumentTypeError(f"must be within 0..1000, got {value}")
-    return value
-
-
-def _seed(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if not 0 <= value < 2**63:
-        raise argparse.ArgumentTypeError(f"must be within 0..2**63-1, got {value}")
-    return value
+_count = int_in_range(0, 1000)
 
 
 def register(subparsers) -> argparse.ArgumentParser:
@@ -84,7 +67,7 @@ def register(subparsers) -> argparse.ArgumentParser:
     t.add_argument("--refraction", choices=("erfa", "almanac", "none"), help="refraction model (default erfa; almanac = the seeds' model)")
     o = p.add_argument_group("scene and output")
     o.add_argument("--mag-limit", type=finite_float, metavar="MAG", default=None, help="faintest Hp magnitude (default 8)")
-    o.add_argument("--seed", type=_seed, metavar="N", help="noise seed (default: random, reported)")
+    o.add_argument("--seed", type=rng_seed, metavar="N", help="noise seed (default: random, reported)")
     o.add_argument("--sensor-rate-deg-per-s", type=finite_float, nargs=3, metavar=("WX", "WY", "WZ"),
                    help="sensor angular rate about its axes (boresight, up, right): motion smear")
     o.add_argument("--planets", type=_count, metavar="N", default=0, help="random bright point sources (false stars)")

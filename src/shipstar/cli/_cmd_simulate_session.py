@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from shipstar.cli._common import emit_json, finite_float, positive_float
+from shipstar.cli._common import emit_json, finite_float, positive_float, rng_seed
 from shipstar.errors import ShipstarError
 
 __all__ = ["register", "run"]
@@ -28,16 +28,6 @@ a session larger than --max-output-gb (default 20) or than the free disk space i
 """
 
 
-def _seed(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if not 0 <= value < 2**63:
-        raise argparse.ArgumentTypeError(f"must be within 0..2**63-1, got {value}")
-    return value
-
-
 def register(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "simulate-session", help="write a simulated dock or at-sea session (FITS frames and truth)",
@@ -52,7 +42,7 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--offset-ms", type=finite_float, default=0.0,
                    help="A2's exposures this much later than A1's (ms, within +-1000, default 0)")
     p.add_argument("--mag-limit", type=finite_float, default=8.0, help="faintest Hp magnitude (default 8)")
-    p.add_argument("--seed", type=_seed, default=0, help="noise seed (default 0)")
+    p.add_argument("--seed", type=rng_seed, default=0, help="noise seed (default 0)")
     p.add_argument("--max-output-gb", type=positive_float, default=20.0,
                    help="refuse a session estimated to write more than this (GB, default 20)")
     p.add_argument("--progress", action="store_true", help="progress bar on stderr (default: only on a terminal)")

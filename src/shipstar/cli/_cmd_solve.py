@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from shipstar.cli._common import emit_json, finite_float, positive_float
+from shipstar.cli._common import emit_json, finite_float, float_in_range, int_in_range, positive_float
 
 EPILOG = """\
 examples:
@@ -32,28 +32,9 @@ exit status: 0 solved, 1 not solved (the reason is printed), 2 bad input.
 """
 
 
-def _fov(text: str) -> float:
-    value = finite_float(text)
-    if not 0.5 <= value <= 60.0:
-        raise argparse.ArgumentTypeError(f"must be within 0.5 .. 60 deg, got {value}")
-    return value
-
-
-def _tolerance(text: str) -> float:
-    value = finite_float(text)
-    if not 0.0 <= value <= 0.5:
-        raise argparse.ArgumentTypeError(f"must be within 0 .. 0.5, got {value}")
-    return value
-
-
-def _count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if not 5 <= value <= 1000:
-        raise argparse.ArgumentTypeError(f"must be within 5 .. 1000, got {value}")
-    return value
+_fov = float_in_range(0.5, 60.0, "0.5 .. 60 deg")
+_tolerance = float_in_range(0.0, 0.5, "0 .. 0.5")
+_count = int_in_range(5, 1000, "5 .. 1000")
 
 
 def register(subparsers) -> argparse.ArgumentParser:

@@ -14,7 +14,8 @@ from shipstar._atomic import atomic_write_text  # noqa: F401  (re-exported for c
 from shipstar.errors import ShipstarError
 
 __all__ = ["finite_float", "latitude_deg", "longitude_deg", "deflection_arcsec", "fraction", "positive_float",
-           "emit_json", "atomic_write_text", "check_output_file", "check_output_dir", "accuracy_warnings",
+           "int_in_range", "float_in_range", "rng_seed", "add_site_arguments", "add_weather_arguments",
+           "add_refraction_arguments", "add_date_obs_is_argument", "REFRACTION_MODELS", "emit_json", "atomic_write_text", "check_output_file", "check_output_dir", "accuracy_warnings",
            "one_line"]
 
 
@@ -72,6 +73,95 @@ def positive_float(text: str) -> float:
     if value <= 0.0:
         raise argparse.ArgumentTypeError(f"must be > 0, got {value}")
     return value
+
+
+def _range_text(lo, hi, shown) -> str:
+    if shown is not None:
+        return f"must be within {shown}"
+    return f"must be >= {lo:g}" if hi is None else f"must be within {lo}..{hi}"
+
+
+def int_in_range(lo: int, hi: int | None = None, shown: str | None = None):
+    """argparse type factory: an integer within ``[lo, hi]`` (``hi`` None: no upper bound).
+
+    ``shown`` words the range in the error message (default ``"lo..hi"``, or ``">= lo"``
+    without ``hi``): ``must be within {shown}, got {value}``.
+    """
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+        if value < lo or (hi is not None and value > hi):
+            raise argparse.ArgumentTypeError(f"{_range_text(lo, hi, shown)}, got {value}")
+        return value
+
+    return parse
+
+
+def float_in_range(lo: float, hi: float | None = None, shown: str | None = None):
+    """argparse type factory: a finite float within ``[lo, hi]`` (``hi`` None: no upper
+    bound); ``shown`` as in :func:`int_in_range`."""
+    def parse(text: str) -> float:
+        value = finite_float(text)
+        if value < lo or (hi is not None and value > hi):
+            raise argparse.ArgumentTypeError(f"{_range_text(lo, hi, shown)}, got {value}")
+        return value
+
+    return parse
+
+
+#: argparse type: a random-number seed, 0 .. 2**63-1.
+rng_seed = int_in_range(0, 2**63 - 1, "0..2**63-1")
+
+
+# ---------------------------------------------------------------------------------------
+# Argument groups shared by the commands (each command words the help for its context)
+# ---------------------------------------------------------------------------------------
+
+REFRACTION_MODELS = ("erfa", "almanac", "none")
+
+
+def add_site_arguments(parser, helps: dict, *, required: bool = False, deflection: bool = True,
+                       deflection_default=0.0) -> None:
+    """Add ``--lat-deg``, ``--lon-deg``, ``--height-m`` (default 0) and, with ``deflection``,
+    ``--xi-arcsec``/``--eta-arcsec``; ``helps`` maps each dest (``lat_deg``, ...) to its help."""
+    parser.add_argument("--lat-deg", required=required, type=latitude_deg, help=helps["lat_deg"])
+    parser.add_argument("--lon-deg", required=required, type=longitude_deg, help=helps["lon_deg"])
+    parser.add_argument("--height-m", type=finite_float, default=0.0, help=helps["height_m"])
+    if deflection:
+        parser.add_argument("--xi-arcsec", type=deflection_arcsec, default=deflection_default,
+                            help=helps["xi_arcsec"])
+        parser.add_argument("--eta-arcsec", type=deflection_arcsec, default=deflection_default,
+                            help=helps["eta_arcsec"])
+
+
+def add_weather_arguments(parser, helps: dict, *, required: bool = False, humidity_default=0.0) -> None:
+    """Add ``--pressure-hpa``, ``--temperature-c`` and ``--relative-humidity`` (0..1);
+    ``helps`` maps each dest to its help."""
+    parser.add_argument("--pressure-hpa", required=required, type=finite_float, help=helps["pressure_hpa"])
+    parser.add_argument("--temperature-c", required=required, type=finite_float, help=helps["temperature_c"])
+    parser.add_argument("--relative-humidity", type=fraction, default=humidity_default,
+                        help=helps["relative_humidity"])
+
+
+def add_refraction_arguments(parser, model_help: str, mode_help: str | None = None, *,
+                             default: str | None = "erfa") -> None:
+    """Add ``--refraction`` (erfa, almanac, none) and, with ``mode_help``, ``--refraction-mode``
+    (per-star, the default, or boresight)."""
+    parser.add_argument("--refraction", choices=REFRACTION_MODELS, default=default, help=model_help)
+    if mode_help is not None:
+        parser.add_argument("--refraction-mode", choices=("per-star", "boresight"), default="per-star",
+                            help=mode_help)
+
+
+DATE_OBS_IS_HELP = ("what the frames' DATE-OBS means: start of the exposure (FITS standard, default) or "
+                    "mid-exposure (cameras that write it so)")
+
+
+def add_date_obs_is_argument(parser, help: str = DATE_OBS_IS_HELP) -> None:
+    """Add ``--date-obs-is`` (start, the FITS standard and default, or mid)."""
+    parser.add_argument("--date-obs-is", choices=("start", "mid"), default="start", help=help)
 
 
 def emit_json(obj, stream=None) -> None:
