@@ -57,8 +57,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from shipstar.errors import ShipstarError
-from shipstar.frames import ra_dec_roll_from_C_icrs_from_sensor
-from shipstar.units import ASEC2RAD, RAD2DEG
+from shipstar.identify._result import ra_dec_roll_deg
+from shipstar.units import ASEC2RAD
 
 __all__ = ["DeepMatch", "deep_match", "deep_catalog", "DEEP_MAG_LIMIT"]
 
@@ -165,10 +165,7 @@ class DeepMatch:
     @property
     def ra_dec_roll_deg(self) -> tuple[float, float, float]:
         """Boresight RA, Dec and roll (docs/conventions.md) in degrees (NaN if not solved)."""
-        if not self.solved:
-            return (float("nan"),) * 3
-        ra, dec, roll = ra_dec_roll_from_C_icrs_from_sensor(self.C_icrs_from_sensor)
-        return float(ra * RAD2DEG), float(dec * RAD2DEG), float(roll * RAD2DEG)
+        return ra_dec_roll_deg(self.solved, self.C_icrs_from_sensor)
 
 
 def _failed(n: int, mode: str, reason: str, u, idn, t0: float) -> DeepMatch:

@@ -12,6 +12,14 @@ from shipstar.units import RAD2DEG
 __all__ = ["Identification", "failed_identification"]
 
 
+
+def ra_dec_roll_deg(solved: bool, C_icrs_from_sensor) -> tuple[float, float, float]:
+    """Boresight RA, Dec and roll in degrees of a solution (NaN when not solved)."""
+    if not solved:
+        return (float("nan"),) * 3
+    ra, dec, roll = ra_dec_roll_from_C_icrs_from_sensor(C_icrs_from_sensor)
+    return float(ra * RAD2DEG), float(dec * RAD2DEG), float(roll * RAD2DEG)
+
 @dataclass(frozen=True, eq=False)
 class Identification:
     """Which catalog star each measured star is, and the attitude they give.
@@ -74,10 +82,7 @@ class Identification:
     @property
     def ra_dec_roll_deg(self) -> tuple[float, float, float]:
         """Boresight RA, Dec and roll (docs/conventions.md) in degrees (NaN if not solved)."""
-        if not self.solved:
-            return (float("nan"),) * 3
-        ra, dec, roll = ra_dec_roll_from_C_icrs_from_sensor(self.C_icrs_from_sensor)
-        return float(ra * RAD2DEG), float(dec * RAD2DEG), float(roll * RAD2DEG)
+        return ra_dec_roll_deg(self.solved, self.C_icrs_from_sensor)
 
 
 def failed_identification(n: int, mode: str, reason: str, *, n_patterns: int = 0,
