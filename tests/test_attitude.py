@@ -673,3 +673,21 @@ def test_best_three_stars_picks_a_low_error_triple():
     # best few, and bounds and scatter are strongly correlated
     assert rms[k] <= np.sort(rms)[2] * 1.1
     assert np.corrcoef(np.log(best.bounds_rad_per_mm), np.log(rms))[0, 1] > 0.95
+
+
+def test_solution_reports_the_sigma_its_covariance_assumes():
+    """Without sigma_rad the per-star sigma comes from the residuals; Shuster's covariance
+    recomputed from it (independently, I - w w^T summed here) equals the reported one."""
+    rng = np.random.default_rng(8)
+    w = rng.normal(size=(15, 3)) * [1.0, 0.07, 0.07] + [1.0, 0.0, 0.0]
+    w /= np.linalg.norm(w, axis=1, keepdims=True)
+    C = matrix_from_q_wxyz([0.9, 0.1, -0.3, 0.2])
+    v = w @ C.T + rng.normal(scale=3 * ASEC2RAD, size=w.shape)
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    sol = solve_attitude(w, v, reject_outliers=False)
+    assert sol.sigma_rad.shape == (15,) and np.all(sol.sigma_rad == sol.sigma_rad[0])
+    info = sum((np.eye(3) - np.outer(x, x)) / s**2 for x, s in zip(w, sol.sigma_rad))
+    np.testing.assert_allclose(sol.covariance_rad2, np.linalg.inv(info), rtol=1e-9)
+    given = solve_attitude(w, v, sigma_rad=2 * ASEC2RAD)
+    np.testing.assert_allclose(given.sigma_rad, 2 * ASEC2RAD)
+    assert np.all(np.isnan(solve_attitude(w[:1], v[:1]).sigma_rad))

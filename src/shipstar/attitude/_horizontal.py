@@ -233,18 +233,6 @@ def _failed(n: int, reason: str, w, v, refraction: str, model: str) -> Horizonta
                               np.zeros(n, dtype=bool), 0, w, v, np.full(n, np.nan), refraction, model)
 
 
-def _estimated_sigma(sol, weights) -> np.ndarray:
-    """Per-star sigma from the inliers' residual scatter (as solve_attitude's covariance)."""
-    r = np.asarray(sol.residuals_arcsec, float) / RAD2ASEC
-    a = np.ones(len(r)) if weights is None else np.asarray(weights, float)
-    act = sol.inliers
-    a_rel = a / a[act].mean()
-    dof = max(2 * int(act.sum()) - 3, 1)
-    s = math.sqrt(float(np.sum(a_rel[act] * r[act] ** 2)) / dof)
-    with np.errstate(divide="ignore"):
-        return np.where(a_rel > 0, s / np.sqrt(a_rel), np.inf)
-
-
 def sensor_attitude_hor(w_sensor, v_true_hor, weather, *, model: str = "erfa", refraction: str = "per-star",
                         sigma_rad=None, weights=None, reject_outliers: bool = True,
                         max_residual_arcsec=None, method: str = "quest") -> HorizontalAttitude:
@@ -312,10 +300,7 @@ def sensor_attitude_hor(w_sensor, v_true_hor, weather, *, model: str = "erfa", r
     inl = np.zeros(n, dtype=bool)
     inl[ok] = sol.inliers
     sigma_out = np.full(n, np.nan)
-    if sig is not None:
-        sigma_out[ok] = sig[ok]
-    else:
-        sigma_out[ok] = _estimated_sigma(sol, None if wts is None else wts[ok])
+    sigma_out[ok] = sol.sigma_rad
     return HorizontalAttitude(True, "", sol.C_ref_from_body, sol.covariance_rad2, float(sol.rms_arcsec), res, inl,
                               int(sol.n_used), w, v_ref, sigma_out, refraction, model, rho_b)
 

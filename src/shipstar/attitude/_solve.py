@@ -58,6 +58,10 @@ class AttitudeSolution:
         Rows used in the final solution.
     n_used : int
         ``inliers.sum()``.
+    sigma_rad : ndarray, shape (N,)
+        Per-vector angular error (1-sigma per axis) that ``covariance_rad2`` assumes: the
+        given ``sigma_rad``, or, without it, ``s / sqrt(a_rel)`` with ``s`` from the inliers'
+        residual scatter (NaN when not solved).
     """
 
     solved: bool
@@ -69,13 +73,14 @@ class AttitudeSolution:
     residuals_arcsec: np.ndarray
     inliers: np.ndarray
     n_used: int
+    sigma_rad: np.ndarray
 
 
 def _failed(n, reason, residuals_arcsec=None):
     res = np.full(n, np.nan) if residuals_arcsec is None else residuals_arcsec
     return AttitudeSolution(False, reason, np.full((3, 3), np.nan), np.full(4, np.nan),
                             np.full((3, 3), np.nan), math.nan, res,
-                            np.zeros(n, dtype=bool), 0)
+                            np.zeros(n, dtype=bool), 0, np.full(n, np.nan))
 
 
 def _spread_rad(u):
@@ -279,4 +284,15 @@ def _solution(C, r, active, a, sigma, w, weights_given):
         return _failed(len(w), f"degenerate geometry: {exc}", r * RAD2ASEC)
     rms = math.sqrt(float(np.mean(r[active] ** 2))) * RAD2ASEC
     return AttitudeSolution(True, "", C, q_wxyz_from_matrix(C), P, rms, r * RAD2ASEC,
-                            active.copy(), m)
+                            active.copy(), m, _assumed_sigma(r, active, a, sigma))
+
+
+def _assumed_sigma(r, active, a, sigma):
+    """Per-vector sigma behind the covariance: the given one, else the residual scale
+    ``s^2 = sum a_rel r^2 / (2m - 3)`` over the inliers divided by ``sqrt(a_rel)``."""
+    if sigma is not None:
+        return np.broadcast_to(np.asarray(sigma, float), r.shape).copy()
+    a_rel = a / a[active].mean()
+    s = math.sqrt(float(np.sum(a_rel[active] * r[active] ** 2)) / max(2 * int(active.sum()) - 3, 1))
+    with np.errstate(divide="ignore"):
+        return np.where(a_rel > 0, s / np.sqrt(a_rel), np.inf)
