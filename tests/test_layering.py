@@ -12,7 +12,7 @@ ORDER = [
     "units", "errors", "_atomic", "frames",
     "sky", "_fitsio", "camera", "simulate", "extract",
     "attitude", "identify",
-    "calibrate", "ship", "errormodel", "pipeline",
+    "calibrate", "ship", "errormodel", "pipeline", "live",
     "report", "config", "_demo",
     "cli", "__main__",
 ]
