@@ -179,7 +179,7 @@ def run_demo(out_dir, *, quick: bool = False, plan: DemoPlan | None = None, conf
     write_demo_report(result, databases, result.report_path)
     bar.finish()
     timing["report"] = time.perf_counter() - t
-    from shipstar.config import _atomic_write_text
+    from shipstar._atomic import atomic_write_text
 
-    _atomic_write_text(out / "results.json", json.dumps(results_dict(result), indent=1) + "\n")
+    atomic_write_text(out / "results.json", json.dumps(results_dict(result), indent=1) + "\n")
     return result

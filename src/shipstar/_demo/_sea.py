@@ -99,9 +99,9 @@ class SeaOutcome:
 
 
 def _csv(path: Path, header: list, rows: list) -> Path:
-    from shipstar.config import _atomic_write_text
+    from shipstar._atomic import atomic_write_text
 
-    _atomic_write_text(path, ",".join(header) + "\n" + "".join(",".join(r) + "\n" for r in rows))
+    atomic_write_text(path, ",".join(header) + "\n" + "".join(",".join(r) + "\n" for r in rows))
     return path
 
 
