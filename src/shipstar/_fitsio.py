@@ -47,9 +47,20 @@ import numpy as np
 from shipstar.errors import ShipstarError
 
 __all__ = ["FitsFrameInfo", "read_fits", "read_fits_header", "read_fits_image", "FITS_SUFFIXES",
-           "DATE_OBS_CHOICES", "ROW_ORDERS", "NO_DATE_TEXT"]
+           "DATE_OBS_CHOICES", "ROW_ORDERS", "NO_DATE_TEXT", "is_fits_name", "file_is_complete"]
 
 FITS_SUFFIXES = (".fits", ".fit", ".fts")
+
+
+def is_fits_name(name: str) -> bool:
+    """A frame file's name: ``*.fits``, ``*.fit``, ``*.fts``, each optionally ``.gz``
+    (any case), and not a hidden (dot) file, as temporary files being written are."""
+    low = str(name).lower()
+    if low.startswith("."):
+        return False
+    low = low[:-3] if low.endswith(".gz") else low
+    return low.endswith(FITS_SUFFIXES)
+
 #: What ``DATE-OBS`` means: the start of the exposure (FITS standard) or its middle.
 DATE_OBS_CHOICES = ("start", "mid")
 ROW_ORDERS = ("top-down", "bottom-up")
@@ -289,6 +300,62 @@ def _quick_primary_header(path: Path) -> dict | None:
             or not str(cards.get("NAXIS2", "")).isdigit():
         return None
     return cards
+
+
+def _gzip_is_complete(path: Path) -> tuple[bool, str]:
+    import gzip
+    import zlib
+
+    try:
+        with gzip.open(path, "rb") as fh:
+            while fh.read(1 << 20):
+                pass
+    except (EOFError, OSError, zlib.error) as exc:
+        return False, f"gzip: {exc}"
+    return True, ""
+
+
+def file_is_complete(path) -> tuple[bool, str]:
+    """Whether a frame file has been written to its end: ``(complete, detail)``.
+
+    A plain FITS file is complete when it holds its header up to ``END`` and the primary
+    image's ``NAXIS1 * NAXIS2 * |BITPIX| / 8`` bytes after it (the padding of the last
+    block is not required); a gzipped one when it decompresses to its end.  Files whose
+    primary HDU is not a plain 2-D image are taken as complete (astropy reads them, and
+    says so if they are not).  ``detail`` says what is missing (one line).
+    """
+    path = Path(path)
+    if path.name.lower().endswith(".gz"):
+        return _gzip_is_complete(path)
+    try:
+        size = path.stat().st_size
+        with open(path, "rb") as fh:
+            head = fh.read(_BLOCK * _MAX_HEADER_BLOCKS)
+    except OSError as exc:
+        return False, f"{type(exc).__name__}: {exc.strerror or exc}"
+    if len(head) < _BLOCK:
+        return False, f"{size} bytes, not yet one header block"
+    if not head.startswith(b"SIMPLE  ="):
+        return True, ""
+    cards = {}
+    for i in range(0, len(head) - _CARD + 1, _CARD):
+        key = head[i:i + 8].decode("ascii", "replace").strip()
+        if key == "END":
+            header_bytes = -(-(i + _CARD) // _BLOCK) * _BLOCK
+            break
+        if key in ("NAXIS", "NAXIS1", "NAXIS2", "BITPIX") and head[i + 8:i + 10] == b"= ":
+            cards[key] = _card_value(head[i:i + _CARD].decode("ascii", "replace"))
+    else:
+        return False, f"{size} bytes, no END card yet"
+    try:
+        if int(cards.get("NAXIS", 0)) != 2:
+            return True, ""
+        data = int(cards["NAXIS1"]) * int(cards["NAXIS2"]) * abs(int(cards["BITPIX"])) // 8
+    except (KeyError, ValueError):
+        return True, ""
+    if size < header_bytes + data:
+        return False, f"{size} of {header_bytes + data} bytes"
+    return True, ""
 
 
 # ------------------------------------------------------------------ astropy

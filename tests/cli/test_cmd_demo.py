@@ -82,8 +82,11 @@ def test_quick_run_ship_attitude_methods(quick_run):
         assert all(int(f.split(":")[0].split("_")[1]) < n_img for f in s["failures"])      # image level only
     cen = {k: v["rms_centroid_level_arcsec"] for k, v in m.items()}
     # seed 003's rule takes pitch from the fore-aft sensor and roll from the athwartship one
+    # (A2's, carried to A1's epoch time along the deck's motion fitted to both sensors'
+    # frames, which smooths a little of its noise: within 10 %; A1's roll is 5x worse)
     assert cen["seed rule"]["pitch"] == pytest.approx(cen["single A1"]["pitch"], abs=0.01)
-    assert cen["seed rule"]["roll"] == pytest.approx(cen["single A2"]["roll"], abs=0.01)
+    assert cen["seed rule"]["roll"] == pytest.approx(cen["single A2"]["roll"], rel=0.1)
+    assert cen["single A1"]["roll"] > 3 * cen["seed rule"]["roll"]
     for k in ("heading", "pitch", "roll"):
         assert cen["joint"][k] < min(cen["single A1"][k], cen["single A2"][k]) + 0.05
     assert m["seed rule"]["seed_rms_arcsec"] == {"heading": 8.47, "pitch": 7.16, "roll": 5.12}

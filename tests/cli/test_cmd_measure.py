@@ -51,11 +51,11 @@ def _noise_frame(path, date_obs):
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
-    """A 0.5 s sea session (A2 30 ms late) and a 0.3 s dock session, with true installation files."""
+    """A 0.8 s sea session (A2 30 ms late) and a 0.3 s dock session, with true installation files."""
     from shipstar.simulate._session import dock_session, sea_session, write_session
 
     root = tmp_path_factory.mktemp("measure")
-    sea = sea_session(duration_s=0.5)
+    sea = sea_session(duration_s=0.8)
     sea = sea.replace(sensors=(sea.sensors[0], sea.sensors[1].__class__(**{**sea.sensors[1].__dict__,
                                                                             "time_offset_s": 0.03})))
     write_session(sea, root / "sea")
@@ -76,19 +76,31 @@ def test_sea_session_two_sensors(session):
     assert proc.returncode == 0, proc.stderr
     summary = json.loads(proc.stdout)
     assert summary["fore_aft_sensor"] == "A1" and summary["athwartship_sensor"] == "A2"
+    assert summary["complete"] is True and summary["out"] == "out/att.csv"
+    assert not (session / "out" / "att.csv.partial").exists() and not (session / "out" / "att.csv.resume").exists()
     for s in ("A1", "A2"):
-        assert summary["sensors"][s]["n_solved"] == 5 and summary["sensors"][s]["failures"] == []
+        assert summary["sensors"][s]["n_solved"] == 8 and summary["sensors"][s]["failures"] == []
+    # A2's frames are 30 ms late: the first two epochs cannot be carried, the deck's motion
+    # is fitted to 5 frames or more (causal: no frame waits for later ones)
     joint, seed = summary["methods"]["joint"], summary["methods"]["seed-rule"]
-    assert joint["n_solved"] == 5 and max(joint["rms_arcsec"]) < 3.0
+    assert joint["n"] == 8 and joint["n_solved"] == 6 and max(joint["rms_arcsec"]) < 3.0
     assert joint["rms_arcsec"][0] < seed["rms_arcsec"][0]
     rows = _rows(session / "out" / "att.csv")
-    assert len(rows) == 20 and {r["method"] for r in rows} == {"single", "seed-rule", "joint"}
-    assert all(r["solved"] == "1" for r in rows)
+    assert len(rows) == 32 and {r["method"] for r in rows} == {"single", "seed-rule", "joint"}
+    unsolved = [r for r in rows if r["solved"] == "0"]
+    assert [(r["method"], r["frame"]) for r in unsolved] == [
+        ("seed-rule", "A1_00000.fits"), ("joint", "A1_00000.fits"), ("seed-rule", "A1_00001.fits"),
+        ("joint", "A1_00001.fits")]
+    assert all(r["reason"].startswith("the deck's motion is not known yet") for r in unsolved)
+    # an epoch's rows together: A1's frame, A2's paired frame 30 ms later, the fused rows
+    assert [(r["method"], r["sensor"], r["t_s"]) for r in rows[4:8]] == [
+        ("single", "A1", "0.100000"), ("single", "A2", "0.130000"), ("seed-rule", "A1+A2", "0.100000"),
+        ("joint", "A1+A2", "0.100000")]
     assert {p.split("/")[-1] for p in summary["plots"]} == {"attitude.png", "residuals.png"}
     assert (session / "out" / "plots" / "attitude.png").stat().st_size > 10000
     # how the times were read, in the summary and in every row (the simulator writes DATE-AVG)
     assert summary["date_obs_is"] == "start"
-    assert summary["time_sources"] == {"A1": {"DATE-AVG": 5}, "A2": {"DATE-AVG": 5}}
+    assert summary["time_sources"] == {"A1": {"DATE-AVG": 8}, "A2": {"DATE-AVG": 8}}
     assert all(r["time_source"] == "DATE-AVG" for r in rows)
     # the CSV's comment header: Earth orientation and warnings, as in the summary
     e = summary["eop"]
@@ -96,11 +108,13 @@ def test_sea_session_two_sensors(session):
         "# shipstar measure: ship attitude (docs/file-formats.md)",
         f"# eop_quality = {e['quality']}, dut1_error_s = {e['dut1_error_s']:.3g}, "
         f"polar_motion_error_arcsec = {e['polar_motion_error_arcsec']:.3g}",
-        "# warnings: none"]
+        "# warnings at the start: none (a warning that arises later is written where it arises)"]
     assert summary["warnings"] == []
-    # 10 ms exposures at sea: the streak correction is a few hundredths of an arcsecond
+    # 10 ms exposures at sea: the streak correction is a few hundredths of an arcsecond;
+    # each sensor's first 4 frames come before its motion is known
     assert summary["streak_correction"] is True
     for s in ("A1", "A2"):
+        assert summary["sensors"][s]["n_streak_not_corrected"] == 4
         assert summary["sensors"][s]["n_streak_corrected"] >= 3
         assert 0.01 < summary["sensors"][s]["max_streak_correction_arcsec"] < 0.15
 

@@ -15,6 +15,7 @@ from shipstar.cli._common import (
     check_output_file,
     emit_json,
     float_in_range,
+    int_in_range,
 )
 from shipstar.errors import ShipstarError
 
@@ -47,16 +48,26 @@ vertical left out comes back as pitch and roll bias of its size.  The weather:
 temperature_c[, relative_humidity]); docs/file-formats.md.
 
 Output CSV: one row per sensor frame (method single) and, with two or more sensors, per
-epoch of the reference sensor for the seed's fusion rule and the joint solution, after
-'#' comment lines with the Earth orientation quality and the accuracy warnings.
-Failed frames are rows with solved=0 and their reason.  --truth CSV (time_utc,
+epoch of the reference sensor for the seed's fusion rule and the joint solution, an
+epoch's rows together, after '#' comment lines with the Earth orientation quality and
+the warnings known at the start (a warning that arises later is a '# warning:' line
+where it arises, and is in the summary).  Failed frames are rows with solved=0 and
+their reason.
+
+Whole nights: rows are written as they are produced, to OUT.partial, renamed to OUT when
+the session is complete; memory does not grow with the session.  Ctrl-C or SIGTERM stops
+after the current epoch, leaving OUT.partial with every finished row (and a checkpoint,
+OUT.resume): the same command with --resume continues it to the rows an uninterrupted
+run writes.  --workers N (default: the cores) processes the sensors and 60 s chunks of
+the session in N processes; the output is the same for every N.  --truth CSV (time_utc,
 heading_deg, pitch_deg, roll_deg; simulated sessions) adds error RMS to the summary.
 The summary gives the Earth orientation quality (measured / predicted / extrapolated,
 UT1-UTC error), how the frame times were read (date_obs_is, time_sources) and the
 accuracy warnings, which are also printed one per line on stderr (e.g. a refraction
 model other than the one the installation was calibrated with).
 Exit codes: 0 every frame solved; 1 written, but some frames failed; 2 bad input
-(including a sensor none of whose frames solved).
+(including a sensor none of whose frames solved); 130 / 143 stopped by SIGINT / SIGTERM
+(OUT.partial kept).
 """
 
 
@@ -119,6 +130,10 @@ def register(subparsers) -> argparse.ArgumentParser:
     r.add_argument("--truth", metavar="CSV", help="true attitude (simulated sessions): errors in the summary")
     r.add_argument("--progress", action="store_true", help="progress bar on stderr (default: only on a terminal)")
     r.add_argument("--json", action="store_true", help="print one JSON object (the summary)")
+    r.add_argument("--resume", action="store_true",
+                   help="continue a run stopped by Ctrl-C, SIGTERM or a crash (OUT.partial and OUT.resume)")
+    o.add_argument("--workers", type=int_in_range(1, 256), default=None, metavar="N",
+                   help="worker processes (default: the cores; the output is the same for every N)")
     p.set_defaults(run=run)
     return p
 
@@ -169,24 +184,28 @@ def _installations(args) -> dict:
 
 
 def _configs(args):
+    """``(configs, sources)``: each sensor's configuration and its indexed FITS frames."""
     from shipstar.camera import load_camera
-    from shipstar.pipeline import SensorConfig, scan_frames
-    from shipstar.pipeline._frames import check_sensor_name
+    from shipstar.pipeline import SensorConfig
+    from shipstar.pipeline._sources import FitsDirectorySource
 
     installs = _installations(args)
     cams = dict(args.camera)
     unknown = sorted(set(cams) - {n for n, _ in args.sensor})
     if unknown:
         raise ShipstarError(f"--camera for unknown sensor {unknown[0]!r}")
-    configs, frames = [], []
+    configs, sources = [], []
     for name, directory in args.sensor:
         inst = installs[name]
         camera = load_camera(cams.get(name, inst.camera))
         configs.append(SensorConfig(name, camera, inst))
-        fr = scan_frames(directory, date_obs_is=args.date_obs_is)
-        check_sensor_name(fr, name, camera.name, directory)
-        frames.append(fr)
-    return configs, frames
+        source = FitsDirectorySource(name, directory, date_obs_is=args.date_obs_is)
+        other = sorted(source.sensors_named - {name, camera.name})
+        if other:
+            raise ShipstarError(f"frames in {directory} are from sensor {other[0]!r} (FITS SENSOR/INSTRUME), "
+                                f"not {name!r}")
+        sources.append(source)
+    return configs, sources
 
 
 def _refraction_mismatch(installs: dict, model: str, mode: str) -> list:
@@ -214,13 +233,6 @@ def _refraction_mismatch(installs: dict, model: str, mode: str) -> list:
             out.append(f"sensor {name} was calibrated in dock with {d.refraction_mode} refraction but this run "
                        f"uses {mode} (use --refraction-mode {d.refraction_mode})")
     return out
-
-
-def _check_sensors_solved(result) -> None:
-    for name, frames in zip(result.sensors, result.frames):
-        if not any(fr.solved for fr in frames):
-            reasons = sorted({fr.reason for fr in frames})
-            raise ShipstarError(f"sensor {name}: none of its {len(frames)} frames solved (e.g. {reasons[0]})")
 
 
 def _f2(x) -> str:
@@ -258,42 +270,56 @@ def _check_outputs(args) -> None:
         check_output_dir(args.plots, "--plots", files=("attitude.png", "residuals.png"))
 
 
-def _eop(frames) -> dict:
+def _eop(sources) -> dict:
     """Earth orientation quality over all frames (JSON summary)."""
+    import numpy as np
+
     from shipstar.pipeline import eop_quality
 
-    times = [(f.utc_jd1, f.utc_jd2) for fr in frames for f in fr]
-    jd1, jd2 = zip(*times)
-    return eop_quality(jd1, jd2).as_dict()
+    times = [s.times_utc_jd() for s in sources]
+    return eop_quality(np.concatenate([t[0] for t in times]), np.concatenate([t[1] for t in times])).as_dict()
 
 
 def _csv_comments(eop: dict, warnings: list) -> list:
-    """The attitude CSV's comment lines: Earth orientation quality and accuracy warnings."""
+    """The attitude CSV's comment lines known at the start: Earth orientation quality and
+    the warnings so far (later ones are written where they arise)."""
     lines = ["shipstar measure: ship attitude (docs/file-formats.md)",
              f"eop_quality = {eop['quality']}, dut1_error_s = {eop['dut1_error_s']:.3g}, "
              f"polar_motion_error_arcsec = {eop['polar_motion_error_arcsec']:.3g}"]
-    return lines + ([f"warning: {w}" for w in warnings] or ["warnings: none"])
+    return lines + ([f"warning: {w}" for w in warnings] or
+                    ["warnings at the start: none (a warning that arises later is written where it arises)"])
 
 
-def run(args) -> int:
+def _check_partial(args) -> None:
+    """Without --resume, refuse to start over a stopped run's output (hours of work)."""
+    from pathlib import Path
+
+    from shipstar.pipeline._measure import resume_path
+
+    out = Path(args.out)
+    partial = out.with_name(out.name + ".partial")
+    if not args.resume and (partial.exists() or resume_path(out).exists()):
+        raise ShipstarError(f"{partial} is the output of a stopped run: continue it with --resume, or delete "
+                            f"{partial} and {resume_path(out).name} to start again")
+
+
+def _job(args, track, weather):
+    """``(MeasureJob, sources)`` of the command line, everything checked before processing."""
     import warnings
 
     from shipstar.errors import AccuracyWarning
-    from shipstar.pipeline import (
-        PipelineOptions,
-        TruthTable,
-        plot_session,
-        process_session,
-        session_summary,
-        time_sources,
-        write_attitude_csv,
-    )
-    from shipstar.pipeline._progress import ProgressBar
+    from shipstar.pipeline import PipelineOptions
+    from shipstar.pipeline._measure import MeasureJob
 
-    _check_outputs(args)
-    track, weather = _site_and_weather(args)
-    truth = TruthTable.read_csv(args.truth) if args.truth else None
-    configs, frames = _configs(args)
+    configs, sources = _configs(args)
+    names = [c.name for c in configs]
+    if args.reference is not None and args.reference not in names:
+        raise ShipstarError(f"reference sensor {args.reference!r} is not one of {', '.join(names)}")
+    for source in sources:
+        jd1, jd2 = source.times_utc_jd()
+        for k in (0, -1):
+            track.check_covers(jd1[k], jd2[k])
+            weather.check_covers(jd1[k], jd2[k])
     for message in _refraction_mismatch({c.name: c.installation for c in configs}, args.refraction,
                                         args.refraction_mode):
         warnings.warn(message, AccuracyWarning, stacklevel=1)
@@ -301,28 +327,70 @@ def run(args) -> int:
                               max_pair_offset_s=args.max_pair_offset_s,
                               compensate_motion=not args.no_motion_compensation,
                               streak_correction=not args.no_streak_correction)
+    firsts = [s.times_utc_jd() for s in sources]
+    k = min(range(len(firsts)), key=lambda i: (firsts[i][0][0] - firsts[0][0][0]) + firsts[i][1][0])
+    start = (float(firsts[k][0][0]), float(firsts[k][1][0]))
+    ref = names.index(args.reference) if args.reference else 0
+    return MeasureJob(tuple(configs), track, weather, options, start, ref), sources
+
+
+def run(args) -> int:
+    from shipstar._signals import EXIT_CODES, StopOnSignals
+    from shipstar.pipeline import TruthTable
+    from shipstar.pipeline._measure import default_workers, run_measure
+    from shipstar.pipeline._plots import plot_attitude_csv
+    from shipstar.pipeline._progress import ProgressBar
+
+    _check_outputs(args)
+    _check_partial(args)
+    track, weather = _site_and_weather(args)
+    truth = TruthTable.read_csv(args.truth) if args.truth else None
+    job, sources = _job(args, track, weather)
+    eop = _eop(sources)
+    start_warnings = accuracy_warnings(args)
     bar = ProgressBar(True if args.progress else None)
     try:
-        result = process_session(configs, frames, track, weather, options, reference=args.reference, progress=bar)
+        with StopOnSignals() as stop:
+            outcome = run_measure(job, sources, args.out, truth=truth, comments=_csv_comments(eop, start_warnings),
+                                  workers=args.workers or default_workers(), resume=args.resume,
+                                  progress=lambda done, total: bar("frames", done, total), stop=stop)
     finally:
         bar.close()
-    _check_sensors_solved(result)
-    summary = session_summary(result, truth)
-    summary["out"] = str(args.out)
-    summary["eop"] = _eop(frames)
+    names = [c.name for c in job.configs]
+    fore, athw = _roles(job.configs)
+    summary = outcome.stats.summary(reference_sensor=names[job.reference], fore_aft_sensor=fore,
+                                    athwartship_sensor=athw, options=job.options)
+    summary["out"] = str(outcome.path)
+    summary["complete"] = outcome.complete
+    summary["eop"] = eop
     summary["date_obs_is"] = args.date_obs_is
-    summary["time_sources"] = {name: time_sources(fr) for name, fr in zip(result.sensors, frames)}
-    summary["warnings"] = accuracy_warnings(args)
-    write_attitude_csv(result, args.out, frames, _csv_comments(summary["eop"], summary["warnings"]))
-    if args.plots:
-        summary["plots"] = [str(p) for p in plot_session(result, args.plots, truth)]
+    summary["time_sources"] = {s.name: s.time_sources() for s in sources}
+    summary["warnings"] = list(dict.fromkeys(start_warnings + list(outcome.warnings)))
+    if outcome.resumed_at_s is not None:
+        summary["resumed_at_s"] = outcome.resumed_at_s
+    if outcome.stopped:
+        summary["stopped"] = outcome.stopped
+    elif args.plots:
+        summary["plots"] = [str(p) for p in plot_attitude_csv(outcome.path, args.plots, truth)]
     if args.json:
         emit_json(summary)
     else:
-        _print_text(summary, args.out)
-    n_failed = len(result.failures)
+        _print_text(summary, str(outcome.path))
+    if outcome.stopped:
+        print(f"shipstar measure: stopped by {outcome.stopped} after {outcome.n_epochs_written} epochs; "
+              f"{outcome.path} holds every finished row; the same command with --resume continues it",
+              file=sys.stderr)
+        return EXIT_CODES.get(outcome.stopped, 1)
+    n_failed = outcome.stats.n_failed
     if n_failed:
-        sensor, label, reason = result.failures[0]
+        sensor, label, reason = outcome.stats.first_failure()
         print(f"shipstar measure: {n_failed} frames failed (first: {sensor} {label}: {reason})", file=sys.stderr)
         return 1
     return 0
+
+
+def _roles(configs) -> tuple[str, str]:
+    from shipstar.pipeline import sensor_roles
+
+    fore, athw = sensor_roles(configs)
+    return (configs[fore].name if fore >= 0 else "", configs[athw].name if athw >= 0 else "")

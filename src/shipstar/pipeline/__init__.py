@@ -14,22 +14,29 @@ Public API::
     process_sensor(config, frames, track, weather, options) -> (FrameResult, ...)
     process_session(configs, frames_per_sensor, track, weather, options) -> SessionResult
     session_summary(result, truth=None) -> dict;  TruthTable.read_csv(path)
-    write_attitude_csv(result, path, frames=None, comments=());  plot_session(result, out_dir, truth=None)
+    write_attitude_csv(result, path, comments=());  plot_session(result, out_dir, truth=None)
 
-Streak centroids are time averages over the exposure; ``process_session`` turns them to
-the mid-exposure directions with the deck rate and acceleration fitted to the frames
-(``PipelineOptions(streak_correction=True)``, ``pipeline._exposure``).
+Streak centroids are time averages over the exposure; each sensor's processor turns them
+to the mid-exposure directions with the sensor's rate and acceleration fitted to its own
+frames up to the frame (``PipelineOptions(streak_correction=True)``, ``pipeline._exposure``).
+
+Streaming (docs/pipeline.md, *The engine*)::
+
+    SensorProcessor(config, track, weather, options).process(frame, index, t_s) -> FrameResult
+    SessionEngine(configs, options, start_utc_jd=, reference=).add(frame_result) -> [Emission]
+    fit_motion(t_s, C_hor_from_body, covariance_rad2) -> MotionFit      # the motion model
 """
 
 from __future__ import annotations
 
 from shipstar.pipeline._frames import Frame, read_fits_frame, scan_frames, time_sources
 from shipstar.pipeline._fusion import Epoch, sensor_roles
-from shipstar.pipeline._motion import DeckRate, estimate_deck_rate
+from shipstar.pipeline._engine import Emission, SessionEngine
+from shipstar.pipeline._motion import MotionFit, MotionWindow, fit_motion
 from shipstar.pipeline._options import PipelineOptions, SensorConfig
 from shipstar.pipeline._output import ATTITUDE_COLUMNS, attitude_csv_text, write_attitude_csv
 from shipstar.pipeline._plots import plot_session
-from shipstar.pipeline._sensor import FrameResult
+from shipstar.pipeline._sensor import FrameResult, SensorProcessor
 from shipstar.pipeline._session import SessionResult, process_sensor, process_session
 from shipstar.pipeline._stars import StarLookup
 from shipstar.pipeline._stats import attitude_errors_arcsec, method_series, rms_arcsec, session_summary
@@ -40,7 +47,7 @@ __all__ = [
     "SensorConfig", "PipelineOptions", "Track", "WeatherTable", "TruthTable", "StarLookup",
     "EopQuality", "eop_quality",
     "FrameResult", "Epoch", "SessionResult", "process_sensor", "process_session", "sensor_roles",
-    "DeckRate", "estimate_deck_rate",
+    "SensorProcessor", "SessionEngine", "Emission", "MotionFit", "MotionWindow", "fit_motion",
     "session_summary", "attitude_errors_arcsec", "rms_arcsec", "method_series",
     "ATTITUDE_COLUMNS", "attitude_csv_text", "write_attitude_csv", "plot_session",
 ]

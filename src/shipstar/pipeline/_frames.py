@@ -132,7 +132,8 @@ def scan_frames(directory, *, date_obs_is: str = "start") -> list[Frame]:
     Parameters
     ----------
     directory : str or Path
-        Holds ``*.fits`` / ``*.fit`` / ``*.fts`` frames of ONE sensor.
+        Holds ``*.fits`` / ``*.fit`` / ``*.fts`` frames (each optionally gzipped,
+        ``.fits.gz``) of ONE sensor; hidden (dot) files are ignored.
     date_obs_is : {"start", "mid"}
         What the files' DATE-OBS means when they have no DATE-AVG or DATE-BEG: the start
         of the exposure (the FITS standard, the default) or its middle.
@@ -149,16 +150,16 @@ def scan_frames(directory, *, date_obs_is: str = "start") -> list[Frame]:
         start without EXPTIME / DATE-END), or frames whose times do not increase strictly
         in file-name order (both files named).
     """
-    from shipstar._fitsio import DATE_OBS_CHOICES, read_fits_header
+    from shipstar._fitsio import DATE_OBS_CHOICES, is_fits_name, read_fits_header
 
     if date_obs_is not in DATE_OBS_CHOICES:
         raise ShipstarError(f"date_obs_is must be one of {', '.join(DATE_OBS_CHOICES)}, got {date_obs_is!r}")
     d = Path(directory)
     if not d.is_dir():
         raise ShipstarError(f"frames directory {d} does not exist or is not a directory")
-    paths = sorted(p for p in d.iterdir() if p.suffix.lower() in FITS_SUFFIXES and not p.name.startswith("."))
+    paths = sorted(p for p in d.iterdir() if is_fits_name(p.name))
     if not paths:
-        raise ShipstarError(f"no FITS frames (*.fits) in {d}")
+        raise ShipstarError(f"no FITS frames (*.fits, *.fit, *.fts, optionally .gz) in {d}")
     frames = []
     for p in paths:
         info = read_fits_header(p, date_obs_is=date_obs_is)

@@ -1,8 +1,9 @@
-"""Epochs of a session: frames of all sensors paired by time, carried to a common time, fused.
+"""One epoch: the sensors' paired frames carried to a common time and fused.
 
 Epoch times are the reference sensor's frame times.  For each other sensor the nearest
-frame within ``max_pair_offset_s`` is paired and carried to the epoch time with the deck
-rate (:mod:`shipstar.pipeline._motion`).  At each epoch:
+frame within ``max_pair_offset_s`` is paired (:mod:`shipstar.pipeline._engine` decides
+which) and carried to the epoch time with the deck's motion fitted to the frames
+(:mod:`shipstar.pipeline._motion`).  At each epoch:
 
 - ``single``: every sensor's ship attitude (seed 003 eq. 14-17) at the epoch time;
 - ``seed_rule``: seed 003 eq. 3-5 (heading averaged, pitch from the fore-aft sensor, roll
@@ -18,7 +19,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Epoch", "sensor_roles", "build_epochs"]
+__all__ = ["Epoch", "sensor_roles", "fuse_epoch", "MIN_CARRY_S"]
+
+#: Paired frames closer in time than this (s) are fused without a carry (1 us: 0.014'' at 4 deg/s).
+MIN_CARRY_S = 1e-6
 
 
 @dataclass(frozen=True, eq=False)
@@ -39,6 +43,10 @@ class Epoch:
     single : tuple of ShipAttitude
         Each sensor's ship attitude carried to the epoch time.
     seed_rule, joint : ShipAttitude
+    label : str
+        The reference frame's label.
+    time_source : str
+        How the reference frame's time was found in its file.
     """
 
     index: int
@@ -50,6 +58,8 @@ class Epoch:
     single: tuple
     seed_rule: object
     joint: object
+    label: str = ""
+    time_source: str = ""
 
     @property
     def utc_iso(self) -> str:
@@ -67,13 +77,6 @@ def sensor_roles(configs) -> tuple[int, int]:
     fore = max(inst, key=lambda p: abs(math.cos(p[1].az_rad)))[0]
     athw = max(inst, key=lambda p: abs(math.sin(p[1].az_rad)))[0]
     return (fore, athw) if fore != athw else (-1, -1)
-
-
-def _pair(t_ref: float, times: np.ndarray, window_s: float) -> int:
-    if len(times) == 0:
-        return -1
-    k = int(np.argmin(np.abs(times - t_ref)))
-    return k if abs(times[k] - t_ref) <= window_s + 1e-9 else -1
 
 
 def _sensor_correction(C_ds: np.ndarray, delta_deck: np.ndarray) -> np.ndarray:
@@ -95,8 +98,9 @@ def _carried_single(fr, config, delta_deck):
     return ship_attitude_from_sensor(C_hs, C_ds, fr.horizontal.covariance_rad2, n_stars=fr.horizontal.n_used)
 
 
-def _fuse(paired, configs, roles, deltas):
-    """(seed_rule, joint) from the paired FrameResults (None: no frame)."""
+def _fuse(paired, configs, roles, deltas, singles, carry_why: str = ""):
+    """(seed_rule, joint) from the paired FrameResults (None: no frame) and their carried
+    single-sensor attitudes; ``carry_why``: why the frames cannot be carried ('' if they can)."""
     from shipstar.ship import ShipAttitude, fuse_joint, fuse_seed_rule
 
     names = [c.name for c in configs]
@@ -104,10 +108,9 @@ def _fuse(paired, configs, roles, deltas):
     failed = [f"{fr.sensor} frame {fr.label}: {fr.reason}" for fr in paired if fr is not None and not fr.solved]
     no_inst = [c.name for c in configs if c.installation is None]
     why = (f"no {', '.join(missing)} frame within the pairing window" if missing else
-           "; ".join(failed) if failed else f"no installation for {', '.join(no_inst)}" if no_inst else "")
+           "; ".join(failed) if failed else f"no installation for {', '.join(no_inst)}" if no_inst else carry_why)
     if why:
         return ShipAttitude.failed(why, "seed-rule"), ShipAttitude.failed(why, "joint")
-    singles = [_carried_single(fr, c, d) for fr, c, d in zip(paired, configs, deltas)]
     fore, athw = roles
     seed = (fuse_seed_rule(singles[fore], singles[athw]) if fore >= 0 else
             ShipAttitude.failed("the seed's rule needs a fore-aft and an athwartship sensor", "seed-rule"))
@@ -117,35 +120,65 @@ def _fuse(paired, configs, roles, deltas):
     return seed, fuse_joint(stars)
 
 
-def build_epochs(configs, results, times_s, start_jd, deck_rate, options, reference: int = 0) -> tuple:
-    """Pair, carry and fuse: one :class:`Epoch` per frame of the reference sensor.
+def _deltas(offsets_s, t_s: float, motion, options):
+    """Deck rotations carrying each paired frame to the epoch time (identity for frames at
+    the epoch time or without a pair), or a reason why they cannot be carried."""
+    from shipstar.pipeline._motion import MIN_MOTION_SAMPLES, MOTION_WINDOW_S
+
+    deltas = [np.eye(3)] * len(offsets_s)
+    carried = [k for k, dt in enumerate(offsets_s) if math.isfinite(dt) and abs(dt) > MIN_CARRY_S]
+    if not options.compensate_motion or not carried:
+        return deltas, ""
+    if motion is None:
+        return deltas, f"the deck's motion is not known yet (fewer than {MIN_MOTION_SAMPLES} solved frames within {MOTION_WINDOW_S:g} s)"
+    for k in carried:
+        deltas[k] = motion.rotation(t_s + offsets_s[k], t_s)
+    return deltas, ""
+
+
+def fuse_epoch(index: int, t_s: float, start_jd, configs, paired, offsets_s, motion, options, roles=None, *,
+               reference: int = 0) -> Epoch:
+    """Carry and fuse one epoch.
 
     Parameters
     ----------
-    configs : sequence of SensorConfig
-    results : sequence (per sensor) of sequences of FrameResult
-    times_s : sequence (per sensor) of arrays (M_s,)
-        Frame times, seconds since ``start_jd``.
+    index : int
+        Epoch number.
+    t_s : float
+        Epoch time (the reference frame's), seconds since ``start_jd``.
     start_jd : (float, float)
-    deck_rate : DeckRate
+    configs : sequence of SensorConfig
+    paired : sequence (per sensor) of FrameResult or None
+        The frame of each sensor paired to the epoch (None: none within the window).
+    offsets_s : sequence of float
+        Paired frame time minus epoch time, per sensor (NaN without a frame).
+    motion : MotionFit or None
+        The deck's motion (``C_hor_from_deck``) around the epoch.
     options : PipelineOptions
+    roles : (int, int), optional
+        :func:`sensor_roles` of ``configs``.
     reference : int
-        Index of the reference sensor.
+        Index of the reference sensor (its frame gives the epoch's label).
+
+    Returns
+    -------
+    Epoch
     """
     from shipstar.ship import ShipAttitude
 
-    roles = sensor_roles(configs)
-    epochs = []
-    for k, t in enumerate(times_s[reference]):
-        idx = [k if s == reference else _pair(t, times_s[s], options.max_pair_offset_s) for s in range(len(configs))]
-        paired = [results[s][i] if i >= 0 else None for s, i in enumerate(idx)]
-        offsets = [float(times_s[s][i] - t) if i >= 0 else math.nan for s, i in enumerate(idx)]
-        comp = options.compensate_motion
-        deltas = [deck_rate.rotation(t + dt, t) if (comp and i >= 0) else np.eye(3) for dt, i in zip(offsets, idx)]
-        singles = tuple(_carried_single(fr, c, d) if fr is not None else
-                        ShipAttitude.failed("no frame within the pairing window", "single")
-                        for fr, c, d in zip(paired, configs, deltas))
-        seed, joint = _fuse(paired, configs, roles, deltas)
-        jd1, jd2 = start_jd[0], start_jd[1] + t / 86400.0
-        epochs.append(Epoch(k, jd1, jd2, float(t), tuple(idx), tuple(offsets), singles, seed, joint))
-    return tuple(epochs)
+    roles = sensor_roles(configs) if roles is None else roles
+    deltas, why = _deltas(offsets_s, t_s, motion, options)
+    singles = []
+    for fr, c, d, dt in zip(paired, configs, deltas, offsets_s):
+        if fr is None:
+            singles.append(ShipAttitude.failed("no frame within the pairing window", "single"))
+        elif why and abs(dt) > MIN_CARRY_S:
+            singles.append(ShipAttitude.failed(why, "single"))
+        else:
+            singles.append(_carried_single(fr, c, d))
+    seed, joint = _fuse(paired, configs, roles, deltas, singles, why)
+    singles = tuple(singles)
+    frame_index = tuple(fr.index if fr is not None else -1 for fr in paired)
+    ref = paired[reference]
+    return Epoch(index, start_jd[0], start_jd[1] + t_s / 86400.0, float(t_s), frame_index,
+                 tuple(float(x) for x in offsets_s), singles, seed, joint, ref.label, ref.time_source)

@@ -1,186 +1,248 @@
-"""Deck angular rate from the frames themselves, to carry a frame to another sensor's time.
+"""The motion of a body (the deck, or one sensor) fitted to its recent attitudes, causally.
 
-Two sensors' exposures are not simultaneous (free-running clocks, or one trigger with a
-delay); at sea the deck turns by up to 4 deg/s (5 deg / 8 s roll), i.e. 425'' in 30 ms.
-To fuse a frame of sensor B taken at ``t_B`` with the reference sensor's frame at ``t``,
-B's attitude is carried over ``t - t_B`` with the deck's angular velocity:
+Two things need the motion between exposures:
 
-1. each sensor's single-sensor deck attitudes ``C_hor_from_deck(t_k)`` give rates at the
-   mid-points of consecutive frames, ``omega = log(C_k^T C_k+1) / dt`` (deck axes; exact
-   to second order at the mid-point), with covariance ``(P_k + P_k+1) / dt^2``;
-2. at a time ``t`` every sensor's rate is interpolated (quadratic through the three nearest
-   mid-points), and the sensors are combined with information weights.  Each sensor alone is weak
-   about its boresight (its roll axis); the other sensor's boresight points elsewhere, so
-   the combination is good about every axis;
-3. the rotation over ``[t_a, t_b]`` is ``exp([omega((t_a + t_b) / 2) (t_b - t_a)] x)``
-   in deck axes: ``C_hor_from_deck(t_b) = C_hor_from_deck(t_a) @ Delta``.
+- the *carry*: two sensors' exposures are not simultaneous (free-running clocks, or one
+  trigger with a delay); at sea the deck turns by up to 4 deg/s (5 deg / 8 s roll), 425''
+  in 30 ms, so a frame of sensor B at ``t_B`` is turned to the epoch time ``t`` with the
+  deck's rotation over ``[t_B, t]`` before it is fused;
+- the *streak correction*: a centroid is the star's direction averaged over the
+  exposure, which differs from the mid-exposure one by ``(-alpha x u + omega x (omega x u))
+  T^2 / 24`` (:mod:`shipstar.pipeline._exposure`): it needs the angular velocity
+  ``omega`` and acceleration ``alpha`` at the frame's time.
 
-For the seeds' sea state and a 30 ms offset the truncation error is ~0.3'' (docs/pipeline.md).
+Both come from one model, fitted to the solved attitudes ``C_k`` (with covariances ``P_k``
+about the body axes) of the last :data:`MOTION_WINDOW_S` seconds and nothing later than
+a given time (causal: a frame never waits for later frames)::
 
-The derivative of the same quadratics, :meth:`DeckRate.alpha_at`, is the deck's angular
-acceleration: with the rate it corrects each frame's streak centroids (time averages over
-the exposure) to the mid-exposure directions (:mod:`shipstar.pipeline._exposure`).
+    C(t) = C_ref exp([r(t)] x),   r(t) = sum_j c_j ((t - t_ref) / W)^j,  j = 0..MOTION_DEGREE
+
+``C_ref`` is the newest sample, the rotation vectors ``r_k = log(C_ref^T C_k)`` are a few
+degrees at most, and the coefficients ``c_j`` (3-vectors) are the weighted least-squares
+solution with information ``(P_k + floor^2 I)^-1`` (the floor,
+:data:`SIGMA_FLOOR_ARCSEC`, keeps noise-free simulations from weighting one frame 1e14
+times another).  Then ``omega = J(r) r'`` and ``alpha = J(r) r'' + J'(r) r'`` with the
+right Jacobian ``J(r) = I - [r]x / 2 + ...``; the rotation over ``[t_a, t_b]`` is
+``exp(-[r(t_a)]x) exp([r(t_b)]x)`` (body axes).
+
+Why a polynomial of the attitudes, and these numbers (docs/pipeline.md, *Motion*): the
+batch pipeline before the streaming engine interpolated rates (differences of
+consecutive frames) with three-point quadratics centred on the time, using frames after
+it.  Fitted causally to 0.8 s of attitudes, a quartic is as good or better at the seeds'
+sea state (roll 5 deg / 8 s, pitch 2 deg / 6 s, 0.1 px centroids, 10 frames/s): joint RMS
+0.27 / 0.27 / 0.23'' against 0.30 / 0.28 / 0.28'' with A2 30 ms late, 0.28 / 0.25 /
+0.24'' against 0.31 / 0.28 / 0.28'' with 80 ms streaks; truncation (noise-free) below
+0.02''.  A quadratic is limited by the third derivative (1.4'' over a 30 ms carry at
+0.3 s); a longer window by the fifth.
 """
 
 from __future__ import annotations
 
+import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
-from shipstar.pipeline._rotation import expm_rotvec, rotvec
+from shipstar.units import ASEC2RAD
 
-__all__ = ["DeckRate", "estimate_deck_rate"]
+__all__ = ["MOTION_WINDOW_S", "MOTION_DEGREE", "MIN_MOTION_SAMPLES", "SIGMA_FLOOR_ARCSEC", "MotionFit",
+           "MotionWindow", "fit_motion", "rotvecs", "expm_rotvec"]
 
-#: Consecutive frames further apart (s) give no rate sample.
-MAX_RATE_GAP_S = 0.5
-#: The rate is extrapolated linearly at most this far (s) beyond the first / last sample.
-MAX_EXTRAPOLATION_S = 0.2
-#: Half-width (s) of the window of rate samples the angular acceleration is fitted to.
-ALPHA_WINDOW_S = 0.3
+#: Attitudes older than this (s) before the newest one used are not fitted.
+MOTION_WINDOW_S = 0.8
+#: Degree of the polynomial in time (lower with fewer samples, :func:`fit_motion`).
+MOTION_DEGREE = 4
+#: Fewest samples (distinct times) a fit is made from (a quadratic with two to spare).
+MIN_MOTION_SAMPLES = 5
+#: Added in quadrature to every attitude's sigma about each axis before weighting (arcsec).
+SIGMA_FLOOR_ARCSEC = 0.01
+
+
+def rotvecs(C) -> np.ndarray:
+    """Rotation vectors ``(N, 3)`` of rotation matrices ``(N, 3, 3)`` (angles below pi)."""
+    C = np.asarray(C, float).reshape(-1, 3, 3)
+    s = np.stack([C[:, 2, 1] - C[:, 1, 2], C[:, 0, 2] - C[:, 2, 0], C[:, 1, 0] - C[:, 0, 1]], axis=1)
+    n = np.sqrt(np.einsum("ij,ij->i", s, s))
+    angle = np.arctan2(0.5 * n, 0.5 * (C[:, 0, 0] + C[:, 1, 1] + C[:, 2, 2] - 1.0))
+    scale = np.divide(angle, n, out=np.full_like(n, 0.5), where=n > 0.0)      # angle / (2 sin angle) * 2
+    return s * scale[:, None]
+
+
+def expm_rotvec(phi) -> np.ndarray:
+    """Rotation matrix ``exp([phi x])`` (3, 3) of a rotation vector ``phi`` (3,) (Rodrigues)."""
+    x, y, z = (float(v) for v in np.asarray(phi, float).reshape(3))
+    a = math.sqrt(x * x + y * y + z * z)
+    if a == 0.0:
+        return np.eye(3)
+    s, c1 = math.sin(a) / a, (1.0 - math.cos(a)) / (a * a)
+    return np.array([[1.0 - c1 * (y * y + z * z), c1 * x * y - s * z, c1 * x * z + s * y],
+                     [c1 * x * y + s * z, 1.0 - c1 * (x * x + z * z), c1 * y * z - s * x],
+                     [c1 * x * z - s * y, c1 * y * z + s * x, 1.0 - c1 * (x * x + y * y)]])
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
 @dataclass(frozen=True, eq=False)
-class _SensorRate:
-    t_s: np.ndarray           # (M,) mid-point times
-    omega: np.ndarray         # (M, 3) rad/s, deck axes
-    info: np.ndarray          # (M, 3, 3) inverse covariance of omega
-
-
-@dataclass(frozen=True, eq=False)
-class DeckRate:
-    """The deck's angular velocity relative to the horizontal frame, deck axes.
+class MotionFit:
+    """A body's attitude over a stretch of time: ``C(t) = C_ref exp([r(t)] x)``.
 
     Attributes
     ----------
-    sensors : tuple of _SensorRate
-        Per-sensor rate samples (empty tuple: no samples, rate taken as zero).
+    t_ref_s : float
+        Time origin of the polynomial (the newest sample's time).
+    scale_s : float
+        Time unit of the polynomial (``tau = (t - t_ref_s) / scale_s``).
+    C_ref : (3, 3) array
+        ``C_hor_from_body`` of the newest sample.
+    coef : (D + 1, 3) array
+        Polynomial coefficients of ``r`` in ``tau``, constant term first.
+    t_first_s, t_last_s : float
+        Times of the oldest and newest samples fitted.
+    n_samples : int
     """
 
-    sensors: tuple
+    t_ref_s: float
+    scale_s: float
+    C_ref: np.ndarray
+    coef: np.ndarray
+    t_first_s: float
+    t_last_s: float
+    n_samples: int
 
     @property
-    def available(self) -> bool:
-        return any(len(s.t_s) for s in self.sensors)
+    def degree(self) -> int:
+        return len(self.coef) - 1
+
+    def r(self, t_s: float, derivative: int = 0) -> np.ndarray:
+        """``d^k r / dt^k`` (3,) at ``t_s`` (rad, rad/s, rad/s^2 for k = 0, 1, 2)."""
+        tau = (float(t_s) - self.t_ref_s) / self.scale_s
+        out = np.zeros(3)
+        for j in range(derivative, self.degree + 1):
+            factor = math.perm(j, derivative)
+            out += factor * tau ** (j - derivative) * self.coef[j]
+        return out / self.scale_s ** derivative
 
     def omega_at(self, t_s: float) -> np.ndarray:
-        """Combined angular velocity (3,) rad/s at ``t_s``; zeros when no samples."""
-        return self._combined(t_s, derivative=False)
+        """Angular velocity (3,) rad/s of the body relative to the horizontal frame, body axes."""
+        r, rd = self.r(t_s), self.r(t_s, 1)
+        return rd - 0.5 * _cross(r, rd)
 
     def alpha_at(self, t_s: float) -> np.ndarray:
-        """Combined angular acceleration (3,) rad/s^2 at ``t_s`` (deck axes).
+        """Angular acceleration (3,) rad/s^2, body axes (derivative of :meth:`omega_at`)."""
+        r, rd, rdd = self.r(t_s), self.r(t_s, 1), self.r(t_s, 2)
+        return rdd - 0.5 * _cross(r, rdd)
 
-        The slope at ``t_s`` of one quadratic in time fitted, weighted by their
-        information matrices, to every sensor's rate samples within
-        :data:`ALPHA_WINDOW_S` of it (at least the three nearest of each sensor; ``t_s``
-        held within :data:`MAX_EXTRAPOLATION_S` of the samples).  The derivative of the
-        three-point interpolation of :meth:`omega_at` is several times noisier: in dock
-        with 0.1 px centroids and 80 ms exposures its noise made the streak correction
-        worsen the joint attitude by 5 %.  The window's truncation error,
-        ``(d3 omega / dt3) sum(t^4) / (6 sum(t^2))``, is 0.4 % of the acceleration for the
-        seeds' 8 s roll period and 1.4 % for a 4 s one.  Zeros without samples; the
-        derivative of :meth:`omega_at` when no sensor has three samples.
-        """
-        rows = [s for s in self.sensors if len(s.t_s) >= 3]
-        if not rows:
-            return self._combined(t_s, derivative=True)
-        lo = min(s.t_s[0] for s in rows) - MAX_EXTRAPOLATION_S
-        hi = max(s.t_s[-1] for s in rows) + MAX_EXTRAPOLATION_S
-        t = min(max(float(t_s), lo), hi)
-        normal, rhs = np.zeros((9, 9)), np.zeros(9)
-        for s in rows:
-            near = np.abs(s.t_s - t)
-            pick = near <= max(ALPHA_WINDOW_S, np.partition(near, 2)[2])
-            tau = (s.t_s[pick] - t) / ALPHA_WINDOW_S                        # scaled for conditioning
-            basis = np.stack([np.ones_like(tau), tau, tau * tau], axis=1)                  # (K, 3)
-            info = s.info[pick]                                                            # (K, 3, 3)
-            normal += np.einsum("ki,kj,kab->iajb", basis, basis, info).reshape(9, 9)
-            rhs += np.einsum("ki,kab,kb->ia", basis, info, s.omega[pick]).reshape(9)
-        coef = np.linalg.lstsq(normal, rhs, rcond=1e-12)[0]
-        return coef[3:6] / ALPHA_WINDOW_S
-
-    def _combined(self, t_s: float, derivative: bool) -> np.ndarray:
-        A, b = np.zeros((3, 3)), np.zeros(3)
-        for s in self.sensors:
-            if len(s.t_s) == 0:
-                continue
-            w = _interp_quadratic(t_s, s.t_s, s.omega, derivative=derivative)
-            i = int(np.argmin(np.abs(s.t_s - t_s)))
-            A += s.info[i]
-            b += s.info[i] @ w
-        if not np.any(A):
-            return np.zeros(3)
-        return np.linalg.lstsq(A, b, rcond=1e-12)[0]
+    def C_at(self, t_s: float) -> np.ndarray:
+        """``C_hor_from_body`` (3, 3) at ``t_s``."""
+        return self.C_ref @ expm_rotvec(self.r(t_s))
 
     def rotation(self, t_from_s: float, t_to_s: float) -> np.ndarray:
-        """``Delta`` (3, 3) with ``C_hor_from_deck(t_to) = C_hor_from_deck(t_from) @ Delta``."""
-        dt = t_to_s - t_from_s
-        if dt == 0.0:
+        """``Delta`` (3, 3) with ``C(t_to) = C(t_from) @ Delta`` (body axes)."""
+        if t_to_s == t_from_s:
             return np.eye(3)
-        return expm_rotvec(self.omega_at(0.5 * (t_from_s + t_to_s)) * dt)
+        return expm_rotvec(self.r(t_from_s)).T @ expm_rotvec(self.r(t_to_s))
 
 
-def _interp_quadratic(t: float, ts: np.ndarray, values: np.ndarray, derivative: bool = False) -> np.ndarray:
-    """Quadratic (Lagrange) interpolation of ``values`` (M, 3) through the three samples
-    nearest ``t``, extrapolated at most :data:`MAX_EXTRAPOLATION_S` beyond the ends; with
-    ``derivative`` its time derivative there (linear with two samples, zero with one).
-
-    At sea the rate changes by ~3 deg/s^2 with a curvature of ~2.4 deg/s^3: linear
-    interpolation between samples 0.1 s apart would be wrong by up to 5e-5 rad/s inside
-    and 4e-4 rad/s just past the ends (1.4'' over a 30 ms carry); the quadratic by < 2e-5.
-    """
-    n = len(ts)
-    if n == 1:
-        return np.zeros(3) if derivative else values[0].copy()
-    t = min(max(t, ts[0] - MAX_EXTRAPOLATION_S), ts[-1] + MAX_EXTRAPOLATION_S)
-    if n == 2:
-        if derivative:
-            return (values[1] - values[0]) / (ts[1] - ts[0])
-        f = (t - ts[0]) / (ts[1] - ts[0])
-        return (1.0 - f) * values[0] + f * values[1]
-    k = int(np.clip(np.searchsorted(ts, t) - 1, 0, n - 2))         # ts[k] <= t < ts[k+1] inside
-    lo = k - 1 if (k + 2 >= n or (k >= 1 and t - ts[k - 1] < ts[k + 2] - t)) else k
-    lo = int(np.clip(lo, 0, n - 3))
-    x0, x1, x2 = ts[lo:lo + 3]
-    d0, d1, d2 = (x0 - x1) * (x0 - x2), (x1 - x0) * (x1 - x2), (x2 - x0) * (x2 - x1)
-    if derivative:
-        L = np.array([(2.0 * t - x1 - x2) / d0, (2.0 * t - x0 - x2) / d1, (2.0 * t - x0 - x1) / d2])
-    else:
-        L = np.array([(t - x1) * (t - x2) / d0, (t - x0) * (t - x2) / d1, (t - x0) * (t - x1) / d2])
-    return L @ values[lo:lo + 3]
-
-
-def _sensor_rate(t_s: np.ndarray, C_hd: np.ndarray, cov: np.ndarray) -> _SensorRate:
-    ts, om, info = [], [], []
-    for k in range(len(t_s) - 1):
-        dt = t_s[k + 1] - t_s[k]
-        if not 0.0 < dt <= MAX_RATE_GAP_S:
-            continue
-        ts.append(0.5 * (t_s[k] + t_s[k + 1]))
-        om.append(rotvec(C_hd[k].T @ C_hd[k + 1]) / dt)
-        P = (cov[k] + cov[k + 1]) / dt ** 2
-        info.append(np.linalg.pinv(0.5 * (P + P.T), rcond=1e-12, hermitian=True))
-    if not ts:
-        return _SensorRate(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3, 3)))
-    return _SensorRate(np.array(ts), np.array(om), np.array(info))
-
-
-def estimate_deck_rate(samples) -> DeckRate:
-    """Deck rate from each sensor's solved single-sensor deck attitudes.
+def fit_motion(t_s, C_hor_from_body, covariance_rad2, *, degree: int = MOTION_DEGREE,
+               scale_s: float = MOTION_WINDOW_S) -> MotionFit | None:
+    """Fit :class:`MotionFit` to attitudes.
 
     Parameters
     ----------
-    samples : iterable of (t_s (M,), C_hor_from_deck (M, 3, 3), covariance_deck_rad2 (M, 3, 3))
-        One entry per sensor, solved frames only, in time order; the covariance is the
-        attitude error about the DECK axes (``C_ds P_sensor C_ds^T``).
+    t_s : (N,) array
+        Sample times (any order; samples of several sensors may share a time).
+    C_hor_from_body : (N, 3, 3) array
+    covariance_rad2 : (N, 3, 3) array
+        Attitude error covariance about the body axes.
+    degree : int
+        Polynomial degree; lowered to ``(n_times - 1) // 2`` when fewer distinct sample
+        times are given (a session's first frames, after a gap): with 0.1 px centroids a
+        fit with one degree of freedom to spare carried the first epochs with errors up
+        to 3'', half as many coefficients as samples kept them below 0.8''.
+    scale_s : float
+        Time unit of the polynomial (conditioning only).
 
     Returns
     -------
-    DeckRate
+    MotionFit or None
+        None with fewer than :data:`MIN_MOTION_SAMPLES` distinct times.
     """
-    rates = []
-    for t_s, C_hd, cov in samples:
-        t_s = np.asarray(t_s, float)
-        rates.append(_sensor_rate(t_s, np.asarray(C_hd, float).reshape(-1, 3, 3),
-                                  np.asarray(cov, float).reshape(-1, 3, 3)))
-    return DeckRate(tuple(rates))
+    t = np.asarray(t_s, float).reshape(-1)
+    n_times = len(np.unique(t))
+    if n_times < MIN_MOTION_SAMPLES:
+        return None
+    deg = min(int(degree), (n_times - 1) // 2)
+    C = np.asarray(C_hor_from_body, float).reshape(-1, 3, 3)
+    newest = int(np.argmax(t))
+    C_ref, t_ref = C[newest], float(t[newest])
+    r = rotvecs(np.einsum("ji,njk->nik", C_ref, C))                              # log(C_ref^T C_k)
+    floor = (SIGMA_FLOOR_ARCSEC * ASEC2RAD) ** 2
+    P = np.asarray(covariance_rad2, float).reshape(-1, 3, 3)
+    info = np.linalg.inv(0.5 * (P + np.swapaxes(P, 1, 2)) + floor * np.eye(3))
+    tau = (t - t_ref) / scale_s
+    basis = tau[:, None] ** np.arange(deg + 1)[None, :]                          # (N, D+1)
+    m = 3 * (deg + 1)
+    normal = np.einsum("ki,kj,kab->iajb", basis, basis, info).reshape(m, m)
+    rhs = np.einsum("ki,kab,kb->ia", basis, info, r).reshape(m)
+    coef = np.linalg.lstsq(normal, rhs, rcond=1e-13)[0].reshape(deg + 1, 3)
+    return MotionFit(t_ref, float(scale_s), C_ref, coef, float(t.min()), t_ref, len(t))
+
+
+class MotionWindow:
+    """The last :data:`MOTION_WINDOW_S` seconds of one or more sensors' attitudes of a body.
+
+    Samples are added in time order per source; :meth:`fit` fits the samples no later
+    than each source's limit and within ``window_s`` of the newest of them.  Old samples
+    are dropped by :meth:`prune`, so the memory is bounded by the window.
+
+    Parameters
+    ----------
+    n_sources : int
+        Sensors feeding the window.
+    window_s : float
+    """
+
+    def __init__(self, n_sources: int = 1, window_s: float = MOTION_WINDOW_S):
+        self.window_s = float(window_s)
+        self._samples = [deque() for _ in range(n_sources)]      # (t_s, C (3, 3), P (3, 3))
+
+    def add(self, source: int, t_s: float, C_hor_from_body, covariance_rad2) -> None:
+        """Add one solved attitude of ``source`` (times increasing per source)."""
+        self._samples[source].append((float(t_s), np.asarray(C_hor_from_body, float),
+                                      np.asarray(covariance_rad2, float)))
+
+    def prune(self, t_oldest_needed_s: float) -> None:
+        """Drop samples older than ``t_oldest_needed_s - window_s``."""
+        cut = t_oldest_needed_s - self.window_s - 1e-9
+        for q in self._samples:
+            while q and q[0][0] < cut:
+                q.popleft()
+
+    def __len__(self) -> int:
+        return sum(len(q) for q in self._samples)
+
+    def fit(self, limits_s, *, sources=None) -> MotionFit | None:
+        """:func:`fit_motion` of the samples at or before ``limits_s[source]`` (one time per
+        source, or one float for all) and within ``window_s`` of the newest of them.
+
+        Parameters
+        ----------
+        limits_s : float or sequence of float
+        sources : sequence of int, optional
+            Only these sources (default all).
+        """
+        n = len(self._samples)
+        limits = [float(limits_s)] * n if np.ndim(limits_s) == 0 else [float(x) for x in limits_s]
+        use = range(n) if sources is None else sources
+        picked = [s for k in use for s in self._samples[k] if s[0] <= limits[k] + 1e-9]
+        if not picked:
+            return None
+        newest = max(s[0] for s in picked)
+        picked = [s for s in picked if s[0] >= newest - self.window_s - 1e-9]
+        if len(picked) < MIN_MOTION_SAMPLES:
+            return None
+        return fit_motion([s[0] for s in picked], np.array([s[1] for s in picked]),
+                          np.array([s[2] for s in picked]))

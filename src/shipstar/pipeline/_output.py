@@ -1,10 +1,17 @@
 """The attitude CSV of a session (docs/file-formats.md): one row per frame and method.
 
+Rows come in the engine's order (:mod:`shipstar.pipeline._engine`), an epoch's rows
+together: the single-sensor rows of the frames that go with it (each at its own time),
+then, with two or more sensors, the seed's rule and the joint solution at the epoch time.
 Times are written to the microsecond (``time_utc`` ISO 8601 with 6 decimals, ``t_s``
-with 6): at sea the deck turns by up to 4 deg/s, 14'' per millisecond.  Optional comment
-lines (``# ...``, e.g. the Earth orientation quality and accuracy warnings) come before
-the header row; shipstar's CSV reader skips them, astropy (``Table.read(path,
-format="ascii.csv", comment="#")``) and pandas (``comment="#"``) do when told.
+with 6): at sea the deck turns by up to 4 deg/s, 14'' per millisecond.  Comment lines
+(``# ...``) come before the header row (what is known at the start: Earth orientation
+quality, warnings) and where a warning arises; shipstar's CSV reader skips them, astropy
+(``Table.read(path, format="ascii.csv", comment="#")``) and pandas (``comment="#"``) do
+when told.
+
+:class:`AttitudeCsvWriter` writes a session as it runs: to ``OUT.partial``, flushed an
+epoch at a time, renamed to ``OUT`` only when the session is complete.
 """
 
 from __future__ import annotations
@@ -12,14 +19,19 @@ from __future__ import annotations
 import csv
 import io
 import math
+import os
+from pathlib import Path
 
 from shipstar.units import RAD2ASEC, RAD2DEG
 
-__all__ = ["ATTITUDE_COLUMNS", "attitude_csv_text", "write_attitude_csv"]
+__all__ = ["ATTITUDE_COLUMNS", "attitude_csv_text", "write_attitude_csv", "emission_rows", "AttitudeCsvWriter",
+           "PARTIAL_SUFFIX", "comment_lines"]
 
 ATTITUDE_COLUMNS = ("time_utc", "t_s", "method", "sensor", "frame", "solved", "heading_deg", "pitch_deg", "roll_deg",
                     "sigma_heading_arcsec", "sigma_pitch_arcsec", "sigma_roll_arcsec", "n_stars", "rms_arcsec",
                     "reason", "time_source")
+#: A session's CSV is ``OUT + PARTIAL_SUFFIX`` until it is complete.
+PARTIAL_SUFFIX = ".partial"
 
 
 def _fmt(x, digits: int) -> str:
@@ -41,71 +53,141 @@ def _row(time_utc, t_s, method, sensor, frame, att, rms_arcsec=math.nan, time_so
             att.reason, time_source]
 
 
-def _sources(result, frames) -> dict:
-    """``{(sensor, label): time_source}`` from the input frames (empty without them)."""
-    if frames is None:
-        return {}
-    out = {}
-    for name, frs in zip(result.sensors, frames):
-        for f in frs:
-            out[(name, f.label)] = getattr(f, "time_source", "")
-    return out
+def emission_rows(emission, sensors, start_utc_jd) -> list:
+    """The CSV rows (lists of str) of one :class:`~shipstar.pipeline._engine.Emission`.
 
-
-def _rows(result, frames=None) -> list:
-    source = _sources(result, frames)
+    Parameters
+    ----------
+    emission : Emission
+    sensors : sequence of str
+        The session's sensors, in their order (fused rows only with two or more).
+    start_utc_jd : (float, float)
+        Time origin of ``t_s``.
+    """
+    j1, j2 = start_utc_jd
     rows = []
-    for frs in result.frames:
-        for fr in frs:
-            t = result.t_s(fr)
-            rows.append((t, 0, _row(_iso(fr.utc_jd1, fr.utc_jd2), t, "single", fr.sensor, fr.label, fr.ship,
-                                    fr.rms_arcsec, source.get((fr.sensor, fr.label), ""))))
-    if len(result.sensors) > 1:
-        both = "+".join(result.sensors)
-        ref = result.frames_of(result.reference_sensor)
-        for e in result.epochs:
-            label = ref[e.index].label
-            src = source.get((result.reference_sensor, label), "")
-            rows.append((e.t_s, 1, _row(_iso(e.utc_jd1, e.utc_jd2), e.t_s, "seed-rule", both, label, e.seed_rule,
-                                        time_source=src)))
-            rows.append((e.t_s, 2, _row(_iso(e.utc_jd1, e.utc_jd2), e.t_s, "joint", both, label, e.joint,
-                                        time_source=src)))
-    rows.sort(key=lambda r: (r[0], r[1]))
-    return [r[2] for r in rows]
+    for fr in emission.frames:
+        t = ((fr.utc_jd1 - j1) + (fr.utc_jd2 - j2)) * 86400.0
+        rows.append(_row(_iso(fr.utc_jd1, fr.utc_jd2), t, "single", fr.sensor, fr.label, fr.ship, fr.rms_arcsec,
+                         fr.time_source))
+    e = emission.epoch
+    if e is not None and len(sensors) > 1:
+        both = "+".join(sensors)
+        time_utc = _iso(e.utc_jd1, e.utc_jd2)
+        rows.append(_row(time_utc, e.t_s, "seed-rule", both, e.label, e.seed_rule, time_source=e.time_source))
+        rows.append(_row(time_utc, e.t_s, "joint", both, e.label, e.joint, time_source=e.time_source))
+    return rows
 
 
-def _comment_lines(comments) -> list:
+def comment_lines(comments) -> list:
+    """``# text`` lines (white space, newlines included, collapsed)."""
     if isinstance(comments, str):
         comments = [comments]
     return ["# " + " ".join(str(c).split()) + "\n" for c in comments]
 
 
-def attitude_csv_text(result, frames=None, comments=()) -> str:
-    """The CSV text: comment lines, header, then rows sorted by time (single rows first at
-    equal times).
+def _csv_text(rows) -> str:
+    buf = io.StringIO()
+    csv.writer(buf, lineterminator="\n").writerows(rows)
+    return buf.getvalue()
+
+
+def attitude_csv_text(result, comments=()) -> str:
+    """The CSV text of a :class:`~shipstar.pipeline.SessionResult`: comment lines, header,
+    then each emission's rows, each warning that arose as a ``# warning:`` line before the
+    rows it came with (as ``shipstar measure`` writes it).
 
     Parameters
     ----------
     result : SessionResult
-    frames : sequence (per sensor, in ``result.sensors`` order) of sequences of Frame, optional
-        The frames the session was processed from; their ``time_source`` (how each
-        frame's mid-exposure time was found in its file, e.g. ``DATE-OBS+EXPTIME/2``)
-        fills the ``time_source`` column (fused rows: the reference sensor's frame).
-        Without them the column is empty.
     comments : iterable of str
-        Lines written first, each as ``# text`` (white space, newlines included, collapsed).
+        Lines written first, each as ``# text``.
     """
-    buf = io.StringIO()
-    buf.writelines(_comment_lines(comments))
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(ATTITUDE_COLUMNS)
-    w.writerows(_rows(result, frames))
-    return buf.getvalue()
+    names = result.sensors
+    parts = comment_lines(comments) + [_csv_text([ATTITUDE_COLUMNS])]
+    for emission in result.emissions:
+        parts += comment_lines([f"warning: {w}" for w in emission.warnings])
+        parts.append(_csv_text(emission_rows(emission, names, result.start_utc_jd)))
+    return "".join(parts)
 
 
-def write_attitude_csv(result, path, frames=None, comments=()) -> None:
+def write_attitude_csv(result, path, comments=()) -> None:
     """Write the attitude CSV (:func:`attitude_csv_text`) atomically (temporary file +
     rename): a crash never leaves a partial file under the final name."""
     from shipstar._atomic import atomic_write_text
 
-    atomic_write_text(path, attitude_csv_text(result, frames, comments), newline="")
+    atomic_write_text(path, attitude_csv_text(result, comments), newline="")
+
+
+class AttitudeCsvWriter:
+    """The attitude CSV written as a session runs.
+
+    Rows go to ``path + ".partial"`` and are flushed to the operating system after each
+    :meth:`write`; :meth:`complete` renames the file to ``path``.  A run stopped by a
+    signal or a crash leaves ``path.partial`` holding every row written (the last epoch's
+    rows whole: each :meth:`write` is one ``write`` call of complete lines).
+
+    Parameters
+    ----------
+    path : str or Path
+        The final name.
+    sensors : sequence of str
+        The session's sensors, in their order.
+    start_utc_jd : (float, float)
+    comments : iterable of str
+        The ``#`` lines written before the header.
+    append_at : int, optional
+        Continue an existing ``path.partial``: truncate it to this many bytes (the end of
+        the last complete group, recorded by the driver) and append.
+    """
+
+    def __init__(self, path, sensors, start_utc_jd, comments=(), *, append_at: int | None = None):
+        self.path = Path(path)
+        self.partial = self.path.with_name(self.path.name + PARTIAL_SUFFIX)
+        self.sensors = tuple(sensors)
+        self.start_utc_jd = start_utc_jd
+        if append_at is None:
+            self.partial.parent.mkdir(parents=True, exist_ok=True)
+            self._fh = open(self.partial, "w", encoding="utf-8", newline="")
+            self._fh.write("".join(comment_lines(comments)) + _csv_text([ATTITUDE_COLUMNS]))
+            self._fh.flush()
+        else:
+            self._fh = open(self.partial, "r+", encoding="utf-8", newline="")
+            self._fh.seek(append_at)
+            self._fh.truncate()
+
+    def write(self, emission) -> None:
+        """Append one emission's rows (its warnings first, as ``# warning:`` lines) and flush."""
+        text = "".join(comment_lines([f"warning: {w}" for w in emission.warnings]))
+        text += _csv_text(emission_rows(emission, self.sensors, self.start_utc_jd))
+        if text:
+            self._fh.write(text)
+            self._fh.flush()
+
+    def comment(self, text: str) -> None:
+        """Append one ``#`` line and flush."""
+        self._fh.write("".join(comment_lines([text])))
+        self._fh.flush()
+
+    def tell(self) -> int:
+        """Bytes written so far (a resume point)."""
+        return self._fh.tell()
+
+    def sync(self) -> None:
+        """Flush and fsync (a checkpoint)."""
+        self._fh.flush()
+        os.fsync(self._fh.fileno())
+
+    def close(self) -> None:
+        """Close, leaving ``path.partial`` (stopped before the end)."""
+        if not self._fh.closed:
+            self._fh.flush()
+            self._fh.close()
+
+    def complete(self) -> Path:
+        """Close and rename ``path.partial`` to ``path``; returns ``path``."""
+        if not self._fh.closed:
+            self.sync()
+            self._fh.close()
+        os.replace(self.partial, self.path)
+        return self.path

@@ -7,6 +7,8 @@ Per frame (seed 003 steps 1-3, 5-6)::
          else DATE-OBS/DATE-BEG, the start, plus EXPTIME/2 -- and the ship's position)
       -> apparent places of the identified stars -> refraction (per star)
       -> C_hor_from_sensor (QUEST-Newton, outlier rejection, covariance)
+      -> streaks: measured directions turned to mid-exposure with the sensor's motion
+         fitted to its own last frames (causal), solved again
       -> ship attitude with the installation (seed 003 eq. 14-17)
 
 Every extracted object goes to identification, ranked by flux: at sea every star is a
@@ -21,8 +23,11 @@ extrapolated in plain floats and the identification's unit vectors are reused.
 A frame that fails at any step gives a :class:`FrameResult` with ``solved=False`` and
 the reason; it never stops the session.
 
-:func:`resolve_frame` solves a frame again from corrected measured vectors (the streak
-correction of :mod:`shipstar.pipeline._exposure`) with the same references and weights.
+The state a :class:`SensorProcessor` carries from frame to frame is bounded and explicit:
+the last two solved frames' J2000 attitudes (the tracking prior) and the last
+:data:`~shipstar.pipeline._motion.MOTION_WINDOW_S` seconds of its solved horizontal
+attitudes (the streak correction's motion fit).  A frame's result depends on no later
+frame.
 """
 
 from __future__ import annotations
@@ -138,10 +143,14 @@ class FrameResult:
     streak_correction_arcsec : float
         Largest turn of a measured star direction by the exposure-motion correction
         (time-averaged streak centroid -> mid-exposure direction, :mod:`shipstar.pipeline._exposure`);
-        0 when the frame was not corrected.
+        0 when the frame was not corrected (no exposure time, no installation, below
+        0.01''), NaN when it should have been but the sensor's motion was not known yet
+        (its first 4 frames, or after a gap).
     solve_inputs : _SolveInputs or None
         The reference stars and weights the attitude was solved with (to solve it again,
         :func:`resolve_frame`); None when the frame failed before the attitude step.
+    time_source : str
+        How the frame's time was found in its file (:attr:`Frame.time_source`).
     """
 
     sensor: str
@@ -163,6 +172,16 @@ class FrameResult:
     exposure_s: float = math.nan
     streak_correction_arcsec: float = 0.0
     solve_inputs: _SolveInputs | None = field(default=None, repr=False)
+    time_source: str = ""
+
+    @classmethod
+    def failed(cls, sensor: str, index: int, frame, reason: str) -> "FrameResult":
+        """A frame that was not processed (skipped, refused, unreadable), with its reason."""
+        from shipstar.ship import ShipAttitude
+
+        return cls(sensor, index, frame.label or f"#{index}", frame.utc_jd1, frame.utc_jd2, False, reason, "", 0, 0,
+                   _NAN33.copy(), None, ShipAttitude.failed(reason, "single"), None, None, 0.0, frame.exposure_s,
+                   time_source=frame.time_source)
 
     @property
     def C_hor_from_sensor(self) -> np.ndarray:
@@ -181,6 +200,10 @@ class FrameResult:
         from shipstar.sky.time import iso_from_utc_jd
 
         return iso_from_utc_jd(self.utc_jd1, self.utc_jd2, 6)
+
+    def seconds_since(self, jd1: float, jd2: float) -> float:
+        """Seconds from the two-part UTC JD ``(jd1, jd2)`` to this frame."""
+        return ((self.utc_jd1 - jd1) + (self.utc_jd2 - jd2)) * 86400.0
 
     def sensor_stars(self, C_deck_from_sensor, C_sensor_correction=None):
         """The frame's inlier stars as :class:`shipstar.ship.SensorStars` for joint fusion.
@@ -262,6 +285,8 @@ class SensorProcessor:
     def __init__(self, config, track, weather, options, *, database=None, lookup=None):
         from shipstar.pipeline._stars import default_lookup
 
+        from shipstar.pipeline._motion import MotionWindow
+
         self.config = config
         self.track = track
         self.weather_table = weather
@@ -270,6 +295,9 @@ class SensorProcessor:
         self.lookup = default_lookup() if lookup is None else lookup
         self._history: list = []          # (t_s, C_icrs_from_sensor) of the last solved frames
         self._eop: dict = {}
+        # the streak correction's motion fit: this sensor's last solved attitudes (sensor axes)
+        correct = options.streak_correction and config.installation is not None
+        self._motion = MotionWindow(1) if correct else None
 
     @property
     def database(self):
@@ -336,12 +364,12 @@ class SensorProcessor:
             self._eop = {key: earth_orientation(jd1, jd2)}
         return self._eop[key]
 
-    def _horizontal(self, frame, xy, sigma_px, hip, u_sensor=None):
+    def _horizontal(self, frame, xy, sigma_px, hip, u_sensor=None, site=None, weather=None):
         from shipstar.sky.apparent import frame_context
 
         cam, opt = self.config.camera, self.options
-        site = self.track.site(frame.utc_jd1, frame.utc_jd2)
-        weather = self.weather_table.weather(frame.utc_jd1, frame.utc_jd2)
+        site = self.track.site(frame.utc_jd1, frame.utc_jd2) if site is None else site
+        weather = self.weather_table.weather(frame.utc_jd1, frame.utc_jd2) if weather is None else weather
         rows = np.flatnonzero(hip >= 0)
         if rows.size < 2:
             raise ShipstarError(f"{rows.size} identified stars, at least 2 needed")
@@ -357,9 +385,29 @@ class SensorProcessor:
     def _ship(self, h):
         return ship_from_horizontal(h, self.config.installation)
 
+    def _streaks(self, fr: FrameResult, t_s: float) -> FrameResult:
+        """``fr`` with its measured directions turned to mid-exposure (or unchanged): the
+        sensor's rate and acceleration at ``t_s`` from its own attitudes up to this frame."""
+        from shipstar.pipeline._exposure import streak_corrected
+
+        h = fr.horizontal
+        self._motion.add(0, t_s, h.C_hor_from_sensor, h.covariance_rad2)
+        self._motion.prune(t_s)
+        if not (math.isfinite(fr.exposure_s) and fr.exposure_s > 0.0):
+            return fr
+        fit = self._motion.fit(t_s)
+        if fit is None:                          # the sensor's first frames: motion not known yet
+            return replace(fr, streak_correction_arcsec=math.nan)
+        return streak_corrected(fr, fit.omega_at(t_s), fit.alpha_at(t_s), self.config.installation, self.options)
+
     # -- public ----------------------------------------------------------------------------
-    def process(self, frame, index: int, t_s: float) -> FrameResult:
-        """Process one frame; ``t_s`` is its time in seconds since the session start."""
+    def process(self, frame, index: int, t_s: float, *, site=None, weather=None) -> FrameResult:
+        """Process one frame; ``t_s`` is its time in seconds since the session start.
+
+        ``site`` (:class:`~shipstar.sky.apparent.Site`) and ``weather``
+        (:class:`~shipstar.sky.refraction.Weather`), when given, are used instead of the
+        track's and weather table's values at the frame's time (live operation).
+        """
         from shipstar.ship import ShipAttitude
 
         t0 = time.perf_counter()
@@ -369,11 +417,14 @@ class SensorProcessor:
             xy, sigma_px = self._measure(frame)
             n_det = len(xy)
             hip, mode, C_icrs, u_sensor = self._identify(frame, xy, t_s)
-            h, site, weather, n_id, inputs = self._horizontal(frame, xy, sigma_px, hip, u_sensor)
+            h, site, weather, n_id, inputs = self._horizontal(frame, xy, sigma_px, hip, u_sensor, site, weather)
         except ShipstarError as exc:
             return FrameResult(self.config.name, index, label, frame.utc_jd1, frame.utc_jd2, False, str(exc), mode,
                                n_det, n_id, C_icrs, None, ShipAttitude.failed(str(exc), "single"), None, None,
-                               time.perf_counter() - t0, frame.exposure_s)
-        return FrameResult(self.config.name, index, label, frame.utc_jd1, frame.utc_jd2, bool(h.solved), h.reason,
-                           mode, n_det, n_id, C_icrs, h, self._ship(h), site, weather, time.perf_counter() - t0,
-                           frame.exposure_s, solve_inputs=inputs)
+                               time.perf_counter() - t0, frame.exposure_s, time_source=frame.time_source)
+        fr = FrameResult(self.config.name, index, label, frame.utc_jd1, frame.utc_jd2, bool(h.solved), h.reason,
+                         mode, n_det, n_id, C_icrs, h, self._ship(h), site, weather, time.perf_counter() - t0,
+                         frame.exposure_s, solve_inputs=inputs, time_source=frame.time_source)
+        if self._motion is not None and fr.solved:
+            fr = self._streaks(fr, t_s)
+        return fr

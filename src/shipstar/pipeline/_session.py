@@ -1,10 +1,17 @@
-"""Frames -> attitude over a session: :func:`process_session` and :class:`SessionResult`."""
+"""Frames -> attitude over a session, in memory: :func:`process_session` and :class:`SessionResult`.
+
+The batch driver of the streaming engine for sessions that fit in memory (the Python API,
+the demo, the tests): every sensor's frames are merged into one time order, each frame
+goes through its sensor's :class:`~shipstar.pipeline._sensor.SensorProcessor` and then
+the :class:`~shipstar.pipeline._engine.SessionEngine`, exactly as ``shipstar measure``
+and ``shipstar live`` do, and everything is kept.  Whole nights go through
+:mod:`shipstar.pipeline._measure` instead (constant memory, rows written as they come).
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
 
 from shipstar.errors import ShipstarError
 
@@ -28,6 +35,8 @@ class SessionResult:
     start_utc_jd : (float, float)
         Time origin of every ``t_s``.
     options : PipelineOptions
+    emissions : tuple of Emission
+        What the engine gave out, in order (the attitude CSV's row groups).
     """
 
     sensors: tuple
@@ -38,6 +47,7 @@ class SessionResult:
     athwartship_sensor: str
     start_utc_jd: tuple
     options: object
+    emissions: tuple = ()
 
     def frames_of(self, sensor: str) -> tuple:
         """FrameResults of one sensor."""
@@ -90,8 +100,8 @@ def process_sensor(config, frames, track, weather, options=None, *, start_utc_jd
                    lookup=None, progress=None) -> tuple:
     """Process one sensor's frames (in time order) into :class:`FrameResult` s.
 
-    One pass, without the streak correction (that needs the deck rate, which
-    :func:`process_session` fits to every sensor's frames).
+    The sensor's own chain only (no pairing or fusion); frames of a sensor with an
+    installation and an exposure time are streak-corrected as in :func:`process_session`.
 
     Parameters
     ----------
@@ -126,28 +136,34 @@ def process_sensor(config, frames, track, weather, options=None, *, start_utc_jd
     return tuple(out)
 
 
-def _rate_samples(configs, results, times):
-    """(t_s, C_hor_from_deck, covariance about deck axes) of each sensor's solved frames."""
-    samples = []
-    for c, frs, ts in zip(configs, results, times):
-        if c.installation is None:
-            continue
-        C_ds = c.installation.C_deck_from_sensor
-        ok = [k for k, fr in enumerate(frs) if fr.ship.solved]
-        samples.append((ts[ok], np.array([frs[k].ship.C_hor_from_deck for k in ok]).reshape(-1, 3, 3),
-                        np.array([C_ds @ frs[k].horizontal.covariance_rad2 @ C_ds.T for k in ok]).reshape(-1, 3, 3)))
-    return samples
+def merged_frames(lists, start_utc_jd):
+    """``(t_s, sensor index, frame index, Frame)`` of every sensor's frames, in time order
+    (sensor order at equal times): the order the engine needs its input in."""
+    import heapq
+
+    def stream(s, frames):
+        for k, fr in enumerate(frames):
+            yield fr.seconds_since(*start_utc_jd), s, k, fr
+
+    return heapq.merge(*(stream(s, frames) for s, frames in enumerate(lists)), key=lambda item: item[:2])
+
+
+def session_start(lists) -> tuple:
+    """``(utc_jd1, utc_jd2)`` of the earliest first frame of the sensors' frame lists."""
+    firsts = [f[0] for f in lists if f]
+    first = min(firsts, key=lambda fr: fr.seconds_since(firsts[0].utc_jd1, firsts[0].utc_jd2))
+    return first.utc_jd1, first.utc_jd2
 
 
 def process_session(configs, frames, track, weather, options=None, *, reference: str | None = None,
                     databases=None, lookup=None, progress=None) -> SessionResult:
     """Frames of one or more sensors -> per-frame and fused ship attitude over a session.
 
-    Two passes: every frame is solved (:func:`process_sensor`), the deck rate is fitted
-    to the solved frames, each frame's streak centroids are turned to mid-exposure
-    directions with that rate and its derivative and the frame solved again
-    (``options.streak_correction``, :mod:`shipstar.pipeline._exposure`), then the frames
-    are paired, carried to the epochs and fused.
+    One pass in time order over all sensors' frames: each frame is solved by its sensor's
+    processor (with the streak correction from that sensor's motion up to the frame),
+    then paired, carried to the reference sensor's frame time and fused by the
+    :class:`~shipstar.pipeline._engine.SessionEngine` (docs/pipeline.md).  Everything is
+    kept in memory; ``shipstar measure`` runs the same engine in constant memory.
 
     Parameters
     ----------
@@ -176,10 +192,9 @@ def process_session(configs, frames, track, weather, options=None, *, reference:
         Duplicate sensor names, no frames, frames out of time order, frame times
         outside the track or weather tables, an unknown reference sensor.
     """
-    from shipstar.pipeline._exposure import correct_streaks
-    from shipstar.pipeline._fusion import build_epochs, sensor_roles
-    from shipstar.pipeline._motion import estimate_deck_rate
+    from shipstar.pipeline._engine import SessionEngine
     from shipstar.pipeline._options import PipelineOptions
+    from shipstar.pipeline._sensor import SensorProcessor
 
     options = PipelineOptions() if options is None else options
     configs = list(configs)
@@ -189,16 +204,20 @@ def process_session(configs, frames, track, weather, options=None, *, reference:
     ref = 0 if reference is None else (names.index(reference) if reference in names else -1)
     if ref < 0:
         raise ShipstarError(f"reference sensor {reference!r} is not one of {', '.join(names)}")
-    first = min(lists, key=lambda f: f[0].seconds_since(lists[0][0].utc_jd1, lists[0][0].utc_jd2))[0]
-    start = (first.utc_jd1, first.utc_jd2)
-    results = [process_sensor(c, f, track, weather, options, start_utc_jd=start,
-                              database=(databases or {}).get(c.name), lookup=lookup, progress=progress)
-               for c, f in zip(configs, lists)]
-    times = [np.array([fr.seconds_since(*start) for fr in f]) for f in lists]
-    rate = estimate_deck_rate(_rate_samples(configs, results, times))
-    if options.streak_correction:
-        results = correct_streaks(configs, results, times, rate, options)
-    epochs = build_epochs(configs, results, times, start, rate, options, reference=ref)
-    fore, athw = sensor_roles(configs)
-    return SessionResult(names, tuple(results), epochs, names[ref], names[fore] if fore >= 0 else "",
-                         names[athw] if athw >= 0 else "", start, options)
+    start = session_start(lists)
+    procs = [SensorProcessor(c, track, weather, options, database=(databases or {}).get(c.name), lookup=lookup)
+             for c in configs]
+    engine = SessionEngine(configs, options, start_utc_jd=start, reference=ref)
+    results, emissions = [[] for _ in configs], []
+    for t, s, k, frame in merged_frames(lists, start):
+        fr = procs[s].process(frame, k, t)
+        results[s].append(fr)
+        emissions += engine.add(fr)
+        if progress is not None:
+            progress(names[s], k + 1, len(lists[s]))
+    emissions += engine.finish()
+    fore, athw = engine.roles
+    epochs = tuple(e.epoch for e in emissions if e.epoch is not None)
+    return SessionResult(names, tuple(tuple(r) for r in results), epochs, names[ref],
+                         names[fore] if fore >= 0 else "", names[athw] if athw >= 0 else "", start, options,
+                         tuple(emissions))

@@ -257,7 +257,8 @@ class TruthTable(_TimeTable):
         """(heading, pitch, roll) at a time listed in the table (within ``tolerance_s``),
         else ``(nan, nan, nan)``."""
         t = self._seconds(utc_jd1, utc_jd2)
-        i = int(np.argmin(np.abs(self.t_s - t)))
+        k = int(np.searchsorted(self.t_s, t))                   # O(log M): the rows are in time order
+        i = min((j for j in (k - 1, k) if 0 <= j < len(self.t_s)), key=lambda j: abs(self.t_s[j] - t))
         if abs(self.t_s[i] - t) > tolerance_s:
             return math.nan, math.nan, math.nan
         return float(self.heading_rad[i]), float(self.pitch_rad[i]), float(self.roll_rad[i])

@@ -257,3 +257,11 @@ def leap_second_table_expiry_mjd() -> float:
     if bad.size:
         return float(file_mjd[bad[0]])
     return expiry_mjd
+
+
+def utc_jd_now() -> tuple[float, float]:
+    """The system clock's UTC now as a two-part Julian date ``(2440587.5, days since
+    1970-01-01)`` (POSIX time has no leap seconds: as UTC everywhere but inside one)."""
+    import time
+
+    return 2440587.5, time.time() / 86400.0

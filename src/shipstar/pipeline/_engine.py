@@ -1,0 +1,242 @@
+"""The streaming session engine: each sensor's frame results in, epochs out, in order.
+
+The per-frame work of a sensor (extraction, identification, sky, attitude, streak
+correction: :class:`shipstar.pipeline._sensor.SensorProcessor`) depends only on that
+sensor's frames up to the frame.  What needs both sensors is done here, as the frames
+come, by :class:`SessionEngine`:
+
+- **pairing**: an epoch is a frame of the reference sensor (time ``t``); each other
+  sensor's frame nearest ``t`` within ``max_pair_offset_s`` is paired to it.  The pairing
+  is decided as soon as each other sensor has delivered a frame at or after ``t`` (or has
+  ended): later frames can only be further away.  That frame is the engine's only
+  look-ahead: at most one frame period of the other sensor, none when the sensors expose
+  together;
+- **carry**: paired frames exposed at another time are turned to ``t`` with the deck's
+  motion fitted (:mod:`shipstar.pipeline._motion`) to the solved single-sensor deck
+  attitudes of every sensor up to the frames the decision used (the reference sensor's up
+  to ``t``, each other sensor's up to its first frame at or after ``t``), so the numbers
+  do not depend on how far other frames have arrived;
+- **fusion**: the seed's rule and the joint solution (:func:`shipstar.pipeline._fusion.fuse_epoch`);
+- **time checks**: frames in time order per sensor (a frame not later than the sensor's
+  previous one is answered at once as a failed frame, never paired), the way each
+  sensor's frame times were read staying the same, gaps in a sensor's frames.
+
+What the engine holds is bounded: per sensor the frames not yet given out (one frame
+period when the sensors run together), the last paired frame, and the deck attitudes of
+the last :data:`~shipstar.pipeline._motion.MOTION_WINDOW_S` seconds.
+
+Out come :class:`Emission` s in epoch order: an epoch with the single-sensor frames whose
+rows go with it (the reference frame, the frames it paired that no earlier epoch had,
+and frames no epoch can pair any more), and the warnings that arose.  Batch processing
+(:func:`shipstar.pipeline.process_session`, ``shipstar measure``) and ``shipstar live``
+are two drivers of this engine.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, replace
+
+from shipstar.errors import ShipstarError
+
+__all__ = ["Emission", "SessionEngine", "GAP_WARNING_S"]
+
+#: A sensor's frames further apart than this (s) are reported as a gap.
+GAP_WARNING_S = 2.0
+_EPS_S = 1e-9
+
+
+@dataclass(frozen=True, eq=False)
+class Emission:
+    """What the engine gives out at once.
+
+    Attributes
+    ----------
+    frames : tuple of FrameResult
+        Frames whose single-sensor rows go out now, in time order.
+    epoch : Epoch or None
+        The epoch these rows belong to; None for frames left over when the reference
+        sensor has ended, and for a frame refused for its time.
+    warnings : tuple of str
+        Warnings that arose with these frames (one line each).
+    """
+
+    frames: tuple
+    epoch: object
+    warnings: tuple = ()
+
+
+class SessionEngine:
+    """Pairs, carries and fuses the sensors' frames as they come.
+
+    Parameters
+    ----------
+    configs : sequence of SensorConfig
+    options : PipelineOptions, optional
+    start_utc_jd : (float, float)
+        Time origin of every ``t_s``.
+    reference : int
+        Index of the sensor whose frame times are the epochs.
+
+    Notes
+    -----
+    Feed each sensor's :class:`~shipstar.pipeline._sensor.FrameResult` s in time order with
+    :meth:`add`; :meth:`close` a sensor when its frames have ended (or, live, stopped
+    coming: it is then left out of the pairing until it delivers again).  Each call
+    returns the :class:`Emission` s that became final.
+    """
+
+    def __init__(self, configs, options=None, *, start_utc_jd, reference: int = 0):
+        from shipstar.pipeline._fusion import sensor_roles
+        from shipstar.pipeline._motion import MotionWindow
+        from shipstar.pipeline._options import PipelineOptions
+
+        self.configs = tuple(configs)
+        self.names = tuple(c.name for c in self.configs)
+        if not self.configs:
+            raise ShipstarError("no sensors given")
+        if not 0 <= reference < len(self.configs):
+            raise ShipstarError(f"reference sensor index {reference} out of range")
+        self.options = PipelineOptions() if options is None else options
+        self.start_utc_jd = (float(start_utc_jd[0]), float(start_utc_jd[1]))
+        self.reference = int(reference)
+        self.roles = sensor_roles(self.configs)
+        n = len(self.configs)
+        self._queue = [deque() for _ in range(n)]       # (t_s, FrameResult) not yet given out
+        self._kept = [None] * n                         # (t_s, FrameResult) last paired frame (may pair again)
+        self._closed = [False] * n
+        self._last_t = [-math.inf] * n
+        self._source = [None] * n                       # time_source of the sensor's first frame
+        self._motion = MotionWindow(n)                  # solved single-sensor deck attitudes
+        self._warnings: list = []
+        self.n_epochs = 0
+
+    # -- input -----------------------------------------------------------------------------
+    def t_s(self, fr) -> float:
+        """Seconds from the session start to a frame."""
+        return ((fr.utc_jd1 - self.start_utc_jd[0]) + (fr.utc_jd2 - self.start_utc_jd[1])) * 86400.0
+
+    def _index(self, sensor: str) -> int:
+        try:
+            return self.names.index(sensor)
+        except ValueError:
+            raise ShipstarError(f"no sensor {sensor!r} in this session (have {', '.join(self.names)})") from None
+
+    def add(self, fr) -> list:
+        """Add one frame result of one sensor; returns the emissions that became final."""
+        s = self._index(fr.sensor)
+        t = self.t_s(fr)
+        if t <= self._last_t[s] + _EPS_S:
+            reason = (f"frame time {fr.utc_iso} is not later than the sensor's previous frame "
+                      f"({self._last_t[s] - t:.6f} s earlier or the same): refused")
+            from shipstar.ship import ShipAttitude
+
+            bad = replace(fr, solved=False, reason=reason, ship=ShipAttitude.failed(reason, "single"))
+            return [Emission((bad,), None, (f"sensor {fr.sensor}: frame {fr.label}: {reason}",))]
+        self._check_time(s, fr, t)
+        self._last_t[s] = t
+        self._closed[s] = False
+        self._queue[s].append((t, fr))
+        inst = self.configs[s].installation
+        if fr.ship.solved and inst is not None:
+            C_ds = inst.C_deck_from_sensor
+            self._motion.add(s, t, fr.ship.C_hor_from_deck, C_ds @ fr.horizontal.covariance_rad2 @ C_ds.T)
+        return self._advance()
+
+    def close(self, sensor: str) -> list:
+        """No more frames from ``sensor`` (for now); returns the emissions that became final."""
+        self._closed[self._index(sensor)] = True
+        return self._advance()
+
+    def finish(self) -> list:
+        """Close every sensor; returns the remaining emissions."""
+        for k in range(len(self.names)):
+            self._closed[k] = True
+        return self._advance()
+
+    def next_epoch_t_s(self) -> float | None:
+        """Time of the next epoch not yet given out (its reference frame is held), or None."""
+        q = self._queue[self.reference]
+        return q[0][0] if q else None
+
+    @property
+    def n_pending(self) -> int:
+        """Frames held (not yet given out)."""
+        return sum(len(q) for q in self._queue)
+
+    def _check_time(self, s: int, fr, t: float) -> None:
+        name = self.names[s]
+        src = getattr(fr, "time_source", "")
+        if self._source[s] is None:
+            self._source[s] = src
+        elif src != self._source[s]:
+            self._warnings.append(f"sensor {name}: frame {fr.label}'s time comes from {src or 'the caller'}, "
+                                  f"the sensor's first frame's from {self._source[s] or 'the caller'}")
+            self._source[s] = src
+        gap = t - self._last_t[s]
+        if math.isfinite(gap) and gap > GAP_WARNING_S:
+            self._warnings.append(f"sensor {name}: {gap:.1f} s without frames before {fr.label} ({fr.utc_iso})")
+
+    # -- output ----------------------------------------------------------------------------
+    def _advance(self) -> list:
+        out = []
+        ref = self.reference
+        others = [s for s in range(len(self.names)) if s != ref]
+        while True:
+            R = self._queue[ref]
+            if not R:
+                if self._closed[ref]:
+                    rest = sorted(((t, s, fr) for s in others for t, fr in self._queue[s]), key=lambda x: x[:2])
+                    for s in others:
+                        self._queue[s].clear()
+                    if rest or self._warnings:
+                        out.append(Emission(tuple(fr for _, _, fr in rest), None, self._take_warnings()))
+                break
+            t_k = R[0][0]
+            if not all(self._closed[s] or (self._queue[s] and self._queue[s][-1][0] >= t_k - _EPS_S)
+                       for s in others):
+                break
+            out.append(self._epoch(R.popleft(), others))
+        return out
+
+    def _take_warnings(self) -> tuple:
+        w, self._warnings = tuple(self._warnings), []
+        return w
+
+    def _epoch(self, ref_item, others) -> Emission:
+        from shipstar.pipeline._fusion import fuse_epoch
+
+        t_k, fr_ref = ref_item
+        n = len(self.names)
+        paired, offsets, limits = [None] * n, [math.nan] * n, [t_k] * n
+        paired[self.reference], offsets[self.reference] = fr_ref, 0.0
+        rows = [(t_k, self.reference, fr_ref)]
+        window = self.options.max_pair_offset_s
+        for s in others:
+            q = self._queue[s]
+            first = next((j for j, (t, _) in enumerate(q) if t >= t_k - _EPS_S), len(q))
+            cands = ([self._kept[s]] if self._kept[s] is not None else []) + list(q)[:first + 1]
+            best = min(cands, key=lambda c: (abs(c[0] - t_k), c[0])) if cands else None
+            if best is not None and abs(best[0] - t_k) > window + _EPS_S:
+                best = None
+            if first < len(q):
+                limits[s] = q[first][0]
+            elif cands:
+                limits[s] = cands[-1][0]
+            while q and q[0][0] < t_k - _EPS_S:          # no later epoch can pair these
+                rows.append((q[0][0], s, q.popleft()[1]))
+            if best is not None and q and q[0][1] is best[1]:
+                rows.append((q[0][0], s, q.popleft()[1]))
+            if best is not None:
+                paired[s], offsets[s] = best[1], best[0] - t_k
+            self._kept[s] = best
+        motion = None
+        if self.options.compensate_motion and any(abs(o) > 1e-6 for o in offsets if math.isfinite(o)):
+            motion = self._motion.fit(limits)
+        epoch = fuse_epoch(self.n_epochs, t_k, self.start_utc_jd, self.configs, paired, offsets, motion,
+                           self.options, self.roles, reference=self.reference)
+        self.n_epochs += 1
+        self._motion.prune(t_k)
+        rows.sort(key=lambda r: (r[0], r[1]))
+        return Emission(tuple(fr for _, _, fr in rows), epoch, self._take_warnings())

@@ -1,0 +1,412 @@
+"""Whole nights in constant memory: the driver behind ``shipstar measure``.
+
+The session is cut into chunks of :data:`CHUNK_S` seconds.  Each chunk of each sensor is
+one task: a fresh :class:`~shipstar.pipeline._sensor.SensorProcessor` runs over the
+sensor's frames from :data:`WARMUP_S` before the chunk to its end (the warm-up rebuilds
+the state the frames carry: the tracking prior and the streak correction's motion window,
+so that a chunk's results are those of one uninterrupted pass).  Tasks run in worker
+processes (``workers``, spawned) or in this process (``workers=1``); their results come
+back in chunk order, are merged in time order and go through one
+:class:`~shipstar.pipeline._engine.SessionEngine` here, whose emissions are written at
+once (:class:`~shipstar.pipeline._output.AttitudeCsvWriter`, ``OUT.partial``) and counted
+(:class:`~shipstar.pipeline._stats.SessionStats`).  Nothing grows with the session but
+the frame index (times and names, ~100 bytes a frame).
+
+After each chunk a checkpoint (``OUT.resume``, JSON, written atomically after the partial
+file is synced) records how many bytes of ``OUT.partial`` are complete, the time of the
+next epoch and the summary so far.  ``resume=True`` truncates ``OUT.partial`` there,
+replays the engine over the last :data:`ENGINE_WARMUP_S` seconds before it (writing
+nothing) and continues: the rows are those of an uninterrupted run.  A stop by
+SIGINT/SIGTERM (the caller's ``stop`` event) ends after the current epoch; the partial
+file then holds every finished row and nothing else.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from shipstar.errors import ShipstarError
+
+__all__ = ["CHUNK_S", "WARMUP_S", "ENGINE_WARMUP_S", "MeasureJob", "MeasureOutcome", "run_measure",
+           "resume_path", "RESUME_VERSION", "default_workers"]
+
+#: Length of a processing chunk (s).
+CHUNK_S = 60.0
+#: Frames processed before a chunk to rebuild a sensor's state (s): the engine's warm-up,
+#: plus the streak correction's motion window for those frames, plus a second for tracking.
+WARMUP_S = 2.6
+#: The engine's state (pairing, the deck's motion window) rebuilt on resume from this many
+#: seconds of results before the resume point.
+ENGINE_WARMUP_S = 1.3
+RESUME_VERSION = 1
+_EPS_S = 1e-9
+
+
+def resume_path(out) -> Path:
+    """The checkpoint file of a run writing ``out``."""
+    out = Path(out)
+    return out.with_name(out.name + ".resume")
+
+
+@dataclass(frozen=True, eq=False)
+class MeasureJob:
+    """What every task needs (sent once to each worker).
+
+    Attributes
+    ----------
+    configs : tuple of SensorConfig
+    track : Track
+    weather : WeatherTable
+    options : PipelineOptions
+    start_utc_jd : (float, float)
+        Session start: every ``t_s`` is counted from it.
+    reference : int
+        Index of the reference sensor.
+    """
+
+    configs: tuple
+    track: object
+    weather: object
+    options: object
+    start_utc_jd: tuple
+    reference: int = 0
+
+
+@dataclass(frozen=True, eq=False)
+class MeasureOutcome:
+    """What a run gave.
+
+    Attributes
+    ----------
+    stats : SessionStats
+    complete : bool
+        Every chunk processed and the CSV renamed to its final name.
+    stopped : str
+        ``"SIGINT"``, ``"SIGTERM"`` (or another reason) when stopped early, else ``""``.
+    path : Path
+        The CSV written (``OUT`` when complete, ``OUT.partial`` otherwise).
+    warnings : tuple of str
+        Every distinct warning that arose while processing (also in the CSV).
+    n_epochs_written : int
+    resumed_at_s : float or None
+        Where a resumed run continued (s since the session start).
+    """
+
+    stats: object
+    complete: bool
+    stopped: str
+    path: Path
+    warnings: tuple
+    n_epochs_written: int
+    resumed_at_s: float | None = None
+
+
+# -- tasks (run in workers, or here) ---------------------------------------------------------
+
+_JOB: MeasureJob | None = None
+
+
+def _init_worker(job: MeasureJob) -> None:
+    """Worker start: keep the job; leave SIGINT to the main process (it stops the workers)."""
+    import signal
+
+    global _JOB
+    _JOB = job
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _process(job: MeasureJob, sensor: int, piece, lo: int, keep_from: int) -> tuple[list, list]:
+    """Frames ``lo ..`` of one sensor through a fresh processor: ``(results of frames
+    keep_from .., warning messages)``."""
+    from shipstar.errors import AccuracyWarning
+    from shipstar.pipeline._sensor import SensorProcessor
+
+    proc = SensorProcessor(job.configs[sensor], job.track, job.weather, job.options)
+    out = []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", AccuracyWarning)
+        for k, frame in enumerate(piece.load(), start=lo):
+            fr = proc.process(frame, k, frame.seconds_since(*job.start_utc_jd))
+            if k >= keep_from:
+                out.append(fr)
+    messages = list(dict.fromkeys(" ".join(str(w.message).split()) for w in caught
+                                  if issubclass(w.category, AccuracyWarning)))
+    return out, messages
+
+
+def _task(sensor: int, piece, lo: int, keep_from: int) -> tuple[list, list]:
+    return _process(_JOB, sensor, piece, lo, keep_from)
+
+
+# -- the plan --------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class _Chunk:
+    """One chunk of one sensor: frames ``lo .. hi - 1`` processed, results from
+    ``keep_from``; the chunk's own frames start at ``first``."""
+
+    index: int
+    sensor: int
+    lo: int
+    keep_from: int
+    first: int
+    hi: int
+
+
+def _plan(times_s: list, chunk_s: float) -> list:
+    """Chunks ``[[_Chunk per sensor] per chunk index]`` covering every frame."""
+    t_end = max(float(t[-1]) for t in times_s if len(t))
+    n = int(math.floor(t_end / chunk_s)) + 1
+    plan = []
+    for j in range(n):
+        t0, t1 = j * chunk_s, (j + 1) * chunk_s
+        row = []
+        for s, t in enumerate(times_s):
+            idx = np.searchsorted(t, [t0 - WARMUP_S - _EPS_S, t0 - ENGINE_WARMUP_S - _EPS_S, t0 - _EPS_S,
+                                      t1 - _EPS_S])
+            if j == 0:
+                idx[:3] = 0
+            if j == n - 1:
+                idx[3] = len(t)
+            row.append(_Chunk(j, s, *(int(i) for i in idx)))
+        plan.append(row)
+    return plan
+
+
+def _fingerprint(job: MeasureJob, sources, chunk_s: float) -> dict:
+    """What must not change between a stopped run and its ``--resume``."""
+    times = [s.times_utc_jd() for s in sources]
+    return {"sensors": [c.name for c in job.configs], "n_frames": [int(len(t[0])) for t in times],
+            "first_last_utc_jd": [[float(t[0][0] + t[1][0]), float(t[0][-1] + t[1][-1])] for t in times],
+            "start_utc_jd": list(job.start_utc_jd), "reference": job.reference, "chunk_s": chunk_s,
+            "options": repr(job.options),
+            "installations": [repr(c.installation) for c in job.configs],
+            "cameras": [repr(c.camera) for c in job.configs]}
+
+
+def _write_checkpoint(path: Path, state: dict) -> None:
+    from shipstar._atomic import atomic_write_text
+
+    atomic_write_text(path, json.dumps(state))
+
+
+def _read_checkpoint(path: Path, fingerprint: dict, partial: Path) -> dict:
+    if not partial.is_file():
+        raise ShipstarError(f"--resume: no {partial.name} to continue (nothing was stopped, or it was completed)")
+    if not path.is_file():
+        raise ShipstarError(f"--resume: {partial.name} has no checkpoint ({path.name}): it stopped before its first "
+                            f"chunk was complete; run again without --resume")
+    try:
+        state = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise ShipstarError(f"--resume: cannot read {path}: {exc}") from None
+    if state.get("version") != RESUME_VERSION:
+        raise ShipstarError(f"--resume: {path.name} is from another shipstar version")
+    if state.get("fingerprint") != json.loads(json.dumps(fingerprint)):
+        changed = sorted(k for k, v in json.loads(json.dumps(fingerprint)).items()
+                         if state.get("fingerprint", {}).get(k) != v)
+        raise ShipstarError(f"--resume: {partial.name} was written by a run with other input ({', '.join(changed)} "
+                            f"differ); run again without --resume")
+    if partial.stat().st_size < state["bytes"]:
+        raise ShipstarError(f"--resume: {partial.name} is shorter than its checkpoint says ({partial.stat().st_size} "
+                            f"< {state['bytes']} bytes)")
+    return state
+
+
+# -- the run ---------------------------------------------------------------------------------
+
+class _Runner:
+    """Runs the tasks in chunk order, here or in a pool, at most ``ahead`` tasks ahead."""
+
+    def __init__(self, job: MeasureJob, sources, plan, workers: int, first_chunk: int):
+        self.job, self.sources, self.plan = job, sources, plan
+        self.order = [c for row in plan[first_chunk:] for c in row]
+        self.pool = None
+        if workers > 1:
+            import multiprocessing
+
+            self.pool = multiprocessing.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=(job,))
+        self.ahead = max(2 * len(sources), workers + 1)
+        self.pending: dict = {}
+        self.next_submit = 0
+
+    def _submit(self) -> None:
+        while self.pool is not None and self.next_submit < len(self.order) and len(self.pending) < self.ahead:
+            c = self.order[self.next_submit]
+            args = (c.sensor, self.sources[c.sensor].piece(c.lo, c.hi), c.lo, c.keep_from)
+            self.pending[self.next_submit] = self.pool.apply_async(_task, args)
+            self.next_submit += 1
+
+    def result(self, k: int, stop) -> tuple[list, list] | None:
+        """Task ``k``'s ``(results, warnings)``; None when ``stop`` was set while waiting."""
+        c = self.order[k]
+        if self.pool is None:
+            return _process(self.job, c.sensor, self.sources[c.sensor].piece(c.lo, c.hi), c.lo, c.keep_from)
+        self._submit()
+        handle = self.pending[k]
+        while not handle.ready():
+            if stop is not None and stop.is_set():
+                return None
+            handle.wait(0.1)
+        del self.pending[k]
+        self._submit()
+        return handle.get()
+
+    def close(self, abort: bool) -> None:
+        if self.pool is not None:
+            if abort:
+                self.pool.terminate()
+            else:
+                self.pool.close()
+            self.pool.join()
+
+
+def run_measure(job: MeasureJob, sources, out, *, truth=None, comments=(), workers: int = 1, resume: bool = False,
+                chunk_s: float = CHUNK_S, progress=None, stop=None) -> MeasureOutcome:
+    """Process a whole session in chunks, writing the attitude CSV as it goes.
+
+    Parameters
+    ----------
+    job : MeasureJob
+    sources : sequence of FrameSource
+        One per sensor, in ``job.configs`` order.
+    out : str or Path
+        The CSV's final name; written as ``out.partial`` until complete, with its
+        checkpoint in ``out.resume``.
+    truth : TruthTable, optional
+        Errors against it in the summary.
+    comments : iterable of str
+        The CSV's ``#`` lines known at the start.
+    workers : int
+        Worker processes (1: everything in this process; the rows are the same).
+    resume : bool
+        Continue a stopped run from its checkpoint.
+    chunk_s : float
+    progress : callable(done_frames, total_frames), optional
+    stop : threading.Event, optional
+        Set (by a signal handler) to stop after the current epoch; its ``reason``
+        attribute, if any, names the cause in the outcome.
+
+    Returns
+    -------
+    MeasureOutcome
+    """
+    from shipstar.pipeline._engine import SessionEngine
+    from shipstar.pipeline._output import AttitudeCsvWriter
+    from shipstar.pipeline._stats import SessionStats
+
+    out = Path(out)
+    names = [c.name for c in job.configs]
+    times_s = [((j1 - job.start_utc_jd[0]) + (j2 - job.start_utc_jd[1])) * 86400.0
+               for j1, j2 in (s.times_utc_jd() for s in sources)]
+    plan = _plan(times_s, chunk_s)
+    fingerprint = _fingerprint(job, sources, chunk_s)
+    checkpoint = resume_path(out)
+    engine = SessionEngine(job.configs, job.options, start_utc_jd=job.start_utc_jd, reference=job.reference)
+    seen_warnings: list = []
+    if resume:
+        state = _read_checkpoint(checkpoint, fingerprint, out.with_name(out.name + ".partial"))
+        writer = AttitudeCsvWriter(out, names, job.start_utc_jd, append_at=state["bytes"])
+        stats = SessionStats(names, truth, state["stats"])
+        first_chunk, resume_t = state["next_chunk"], state["resume_t_s"]
+        seen_warnings = list(state["warnings"])
+        n_written = state["n_epochs_written"]
+    else:
+        writer = AttitudeCsvWriter(out, names, job.start_utc_jd, comments)
+        stats = SessionStats(names, truth)
+        first_chunk, resume_t, n_written = 0, None, 0
+    total = sum(len(t) for t in times_s)
+    done = sum(c.first for c in plan[first_chunk]) if resume else 0
+    runner = _Runner(job, sources, plan, max(1, int(workers)), first_chunk)
+    resumed_at = first_chunk * chunk_s if resume else None
+    stopped, k = "", 0
+    try:
+        for row in plan[first_chunk:]:
+            results = []
+            for c in row:
+                got = runner.result(k, stop)
+                k += 1
+                if got is None:
+                    break
+                frs, messages = got
+                replay = resume_t is not None and c.index == first_chunk      # rebuild the engine's state
+                results.append(frs if replay else frs[c.first - c.keep_from:])
+                for m in messages:
+                    if m not in seen_warnings:
+                        seen_warnings.append(m)
+                        writer.comment(f"warning: {m}")
+            if len(results) == len(row):
+                merged = sorted(((engine.t_s(fr), s, fr) for s, frs in enumerate(results) for fr in frs),
+                                key=lambda x: x[:2])
+                for _, _, fr in merged:
+                    n_written += _write(engine.add(fr), writer, stats, resume_t, seen_warnings)
+                    if stop is not None and stop.is_set():
+                        break
+            if stop is not None and stop.is_set():
+                stopped = getattr(stop, "reason", "") or "stopped"
+                break
+            resume_t = None
+            done += sum(c.hi - c.first for c in row)
+            if progress is not None:
+                progress(done, total)
+            if row[0].index == len(plan) - 1:
+                n_written += _write(engine.finish(), writer, stats, None, seen_warnings)
+                break
+            writer.sync()                     # the checkpoint never points past what is on disk
+            nxt = engine.next_epoch_t_s()
+            _write_checkpoint(checkpoint, {
+                "version": RESUME_VERSION, "fingerprint": fingerprint, "next_chunk": row[0].index + 1,
+                "bytes": writer.tell(), "resume_t_s": (row[0].index + 1) * chunk_s if nxt is None else nxt,
+                "stats": stats.state(), "warnings": seen_warnings, "n_epochs_written": n_written})
+    except BaseException:
+        runner.close(abort=True)
+        writer.close()
+        raise
+    runner.close(abort=bool(stopped))
+    if stopped:
+        writer.close()
+        return MeasureOutcome(stats, False, stopped, writer.partial, tuple(seen_warnings), n_written, resumed_at)
+    unsolved = stats.unsolved_sensors()
+    if unsolved:
+        writer.close()
+        writer.partial.unlink(missing_ok=True)
+        checkpoint.unlink(missing_ok=True)
+        name, n, reason = unsolved[0]
+        raise ShipstarError(f"sensor {name}: none of its {n} frames solved (e.g. {reason})")
+    path = writer.complete()
+    checkpoint.unlink(missing_ok=True)
+    return MeasureOutcome(stats, True, "", path, tuple(seen_warnings), n_written, resumed_at)
+
+
+def _write(emissions, writer, stats, resume_t, seen_warnings) -> int:
+    """Write and count emissions (on resume, those before the resume point are the
+    replay of what is already written); returns the epochs written."""
+    n = 0
+    for e in emissions:
+        if resume_t is not None and e.epoch is not None and e.epoch.t_s < resume_t - _EPS_S:
+            continue
+        new = tuple(w for w in e.warnings if w not in seen_warnings)
+        seen_warnings.extend(new)
+        if len(new) != len(e.warnings):
+            from dataclasses import replace
+
+            e = replace(e, warnings=new)
+        writer.write(e)
+        stats.add(e)
+        n += e.epoch is not None
+    return n
+
+
+def default_workers() -> int:
+    """The cores this process may run on."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:                                   # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
