@@ -134,6 +134,8 @@ def register(subparsers) -> argparse.ArgumentParser:
                    help="continue a run stopped by Ctrl-C, SIGTERM or a crash (OUT.partial and OUT.resume)")
     o.add_argument("--workers", type=int_in_range(1, 256), default=None, metavar="N",
                    help="worker processes (default: the cores; the output is the same for every N)")
+    o.add_argument("--chunk-s", type=float_in_range(1e-3, 86400.0), default=60.0, metavar="S",
+                   help="processing chunk (s, default 60): each sensor's chunk is one task, a checkpoint after each")
     p.set_defaults(run=run)
     return p
 
@@ -353,6 +355,7 @@ def run(args) -> int:
         with StopOnSignals() as stop:
             outcome = run_measure(job, sources, args.out, truth=truth, comments=_csv_comments(eop, start_warnings),
                                   workers=args.workers or default_workers(), resume=args.resume,
+                                  chunk_s=args.chunk_s,
                                   progress=lambda done, total: bar("frames", done, total), stop=stop)
     finally:
         bar.close()

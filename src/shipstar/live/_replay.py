@@ -589,7 +589,7 @@ class _Lateness:
 
 
 def _run_groups(groups: list, writer: _Writer, start: float, speed: float, stop: _Stop,
-                lateness: _Lateness, progress, total: int) -> bool:
+                lateness: _Lateness, progress, total: int, on_frame=None) -> bool:
     """Publish every group at its due time (``start`` + due / speed; at speed 0 as soon as
     possible after ``start``), its frames staged before the wait; False if stopped first."""
     done = 0
@@ -605,6 +605,8 @@ def _run_groups(groups: list, writer: _Writer, start: float, speed: float, stop:
         for e in group:
             writer.publish(e)
             if e.frame is not None:
+                if on_frame is not None:
+                    on_frame(e.frame.sensor, e.frame.source.name, time.monotonic())
                 if speed > FAST_SPEED:
                     lateness.add(time.monotonic() - deadline)
                 done += 1
@@ -615,7 +617,7 @@ def _run_groups(groups: list, writer: _Writer, start: float, speed: float, stop:
 
 def replay(plan: ReplayPlan, to_dir, *, speed: float = 1.0, start_delay_s: float = DEFAULT_START_DELAY_S,
            table_lead_s: float = DEFAULT_TABLE_LEAD_S, progress=None, stop_event: threading.Event | None = None,
-           handle_signals: bool = True) -> ReplayResult:
+           handle_signals: bool = True, on_frame=None) -> ReplayResult:
     """Write a plan's frames and tables into ``to_dir`` at the session's time spacing.
 
     Parameters
@@ -640,6 +642,8 @@ def replay(plan: ReplayPlan, to_dir, *, speed: float = 1.0, start_delay_s: float
     handle_signals : bool
         Handle SIGINT / SIGTERM while running (only from the main thread; the previous
         handlers are restored on return).
+    on_frame : callable(sensor, file_name, monotonic_s), optional
+        Called as each frame appears under its name (latency measurements).
 
     Returns
     -------
@@ -662,7 +666,8 @@ def replay(plan: ReplayPlan, to_dir, *, speed: float = 1.0, start_delay_s: float
         try:
             writer.create(plan, starts)
             start = time.monotonic() + start_delay_s
-            complete = _run_groups(groups, writer, start, speed, stop, lateness, progress, len(plan.frames))
+            complete = _run_groups(groups, writer, start, speed, stop, lateness, progress, len(plan.frames),
+                                   on_frame)
             if complete:
                 for name, text in ends.items():
                     writer.append(name, text)

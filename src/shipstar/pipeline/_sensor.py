@@ -46,8 +46,6 @@ __all__ = ["FrameResult", "SensorProcessor", "rank_by_flux", "extrapolate_rotati
 _NAN33 = np.full((3, 3), np.nan)
 #: Frames further apart than this (s) do not extrapolate the tracking prior.
 _MAX_PRIOR_GAP_S = 2.0
-#: Earth orientation is looked up once per this many days (1 hour: UT1-UTC moves < 0.1 ms).
-_EOP_BUCKET_DAYS = 1.0 / 24.0
 #: Star databases by camera (``build_database`` costs ~7 ms even when memoised: it
 #: derives the magnitude limit and digests the catalog first).
 _DATABASES: dict = {}
@@ -294,7 +292,6 @@ class SensorProcessor:
         self._database = database
         self.lookup = default_lookup() if lookup is None else lookup
         self._history: list = []          # (t_s, C_icrs_from_sensor) of the last solved frames
-        self._eop: dict = {}
         # the streak correction's motion fit: this sensor's last solved attitudes (sensor axes)
         correct = options.streak_correction and config.installation is not None
         self._motion = MotionWindow(1) if correct else None
@@ -356,16 +353,9 @@ class SensorProcessor:
         u = idn.u_sensor if idn.focal_scale == 1.0 and idn.radial_k1 == 0.0 else None
         return np.asarray(idn.hip, np.int64), idn.mode, np.asarray(idn.C_icrs_from_sensor), u
 
-    def _eop_at(self, jd1: float, jd2: float):
-        from shipstar.sky.eop import earth_orientation
-
-        key = int(math.floor(((jd1 - 2451545.0) + jd2) / _EOP_BUCKET_DAYS))
-        if key not in self._eop:
-            self._eop = {key: earth_orientation(jd1, jd2)}
-        return self._eop[key]
-
     def _horizontal(self, frame, xy, sigma_px, hip, u_sensor=None, site=None, weather=None):
         from shipstar.sky.apparent import frame_context
+        from shipstar.sky.eop import earth_orientation
 
         cam, opt = self.config.camera, self.options
         site = self.track.site(frame.utc_jd1, frame.utc_jd2) if site is None else site
@@ -373,7 +363,9 @@ class SensorProcessor:
         rows = np.flatnonzero(hip >= 0)
         if rows.size < 2:
             raise ShipstarError(f"{rows.size} identified stars, at least 2 needed")
-        ctx = frame_context(frame.utc_jd1, frame.utc_jd2, site, self._eop_at(frame.utc_jd1, frame.utc_jd2))
+        # Earth orientation at the frame's own time (13 us): a frame's result must not depend on
+        # which frame of the hour came first (chunks and resumes start anywhere)
+        ctx = frame_context(frame.utc_jd1, frame.utc_jd2, site, earth_orientation(frame.utc_jd1, frame.utc_jd2))
         v_true = self.lookup.hor(ctx, hip[rows])
         w = cam.unproject(xy[rows]) if u_sensor is None else u_sensor[rows]
         scale = cam.pixel_mm / cam.f_mm
