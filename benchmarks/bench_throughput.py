@@ -8,8 +8,9 @@ a temporary (or given) directory.  The chain per frame, as ``shipstar measure`` 
 EXPTIME/2), read the image (``shipstar._fitsio.read_fits_image``) -> extract_stars ->
 identify (lost-in-space on the first frame, tracking after) -> FrameContext (erfa.apco13)
 -> apparent places + per-star refraction -> QUEST attitude in the horizontal frame ->
-ship attitude; then the deck rate fit, the streak correction (frames solved again from
-mid-exposure directions), pairing, motion compensation and both fusions.
+the streak correction (the sensor's motion fitted to its last frames, the frame solved
+again from mid-exposure directions) -> ship attitude; then, in the streaming engine,
+pairing, the deck's motion fit, motion compensation and both fusions.
 
 Printed: the time per frame of the whole chain (header scan and fusion included), as
 frames per second of one sensor's chain on one core and of both sensors sharing one
@@ -51,8 +52,8 @@ STAGES = {  # profile entry -> label
     "hor": "apparent places",
     "sensor_attitude_hor": "refraction + attitude",
     "_ship": "ship attitude",
-    "correct_streaks": "streak correction",
-    "build_epochs": "pairing + fusion",
+    "_streaks": "streak correction",
+    "_epoch": "engine: pairing, motion fit, fusion",
 }
 
 

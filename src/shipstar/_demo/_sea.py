@@ -1,10 +1,13 @@
 """The session at sea: simulated frames -> pipeline (per sensor, seed rule, joint) -> errors vs truth.
 
-The image-level part of the session (its first ``image_level_s``) is processed in chunks
-of ``CHUNK_FRAMES`` frames per sensor (one ``process_session`` call each, so at most a
-chunk of images is in memory); the centroid-level rest in one call.  The track, weather
-and truth tables are written as CSV files into the output directory and read back with
-the pipeline's readers, exactly as a user's files would be.
+The frames are made one at a time as the stream needs them (the image-level part, the
+session's first ``image_level_s``, rendered; the rest at centroid level) and go through
+the streaming engine exactly as ``shipstar measure`` and ``shipstar live`` run it: each
+sensor's :class:`~shipstar.pipeline.SensorProcessor`, then one
+:class:`~shipstar.pipeline.SessionEngine` for the whole session, so at most a frame's
+image is in memory and nothing restarts between the image-level and centroid-level
+parts.  The track, weather and truth tables are written as CSV files into the output
+directory and read back with the pipeline's readers, exactly as a user's files would be.
 """
 
 from __future__ import annotations
@@ -17,9 +20,7 @@ import numpy as np
 
 from shipstar.units import RAD2ASEC, RAD2DEG
 
-__all__ = ["MethodSeries", "SeaSensor", "SeaOutcome", "run_sea", "CHUNK_FRAMES", "write_session_tables"]
-
-CHUNK_FRAMES = 20
+__all__ = ["MethodSeries", "SeaSensor", "SeaOutcome", "run_sea", "write_session_tables"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -125,21 +126,26 @@ def write_session_tables(spec, out_dir: Path) -> dict:
             "truth": _csv(out_dir / "truth.csv", ["time_utc", "t_s", "heading_deg", "pitch_deg", "roll_deg"], truth)}
 
 
-def _chunks(n: int, n_img: int) -> list:
-    """``[(lo, hi, image_level), ...]`` frame index ranges: image-level chunks, then the centroid rest."""
-    n_img = min(n, n_img)
-    out = [(lo, min(n_img, lo + CHUNK_FRAMES), True) for lo in range(0, n_img, CHUNK_FRAMES)]
-    return out + ([(n_img, n, False)] if n_img < n else [])
+def _frames_in_time_order(spec, n: int, n_img: int):
+    """``(sensor index, k, Frame)`` of every sensor's first ``n`` frames, made as needed,
+    in time order (sensor order at equal times); frames ``k < n_img`` rendered."""
+    from shipstar._demo._frames import make_frame
+
+    times = [spec.times_s(s)[:n] for s in spec.sensors]
+    order = sorted((float(t[k]), j, k) for j, t in enumerate(times) for k in range(n))
+    for _, j, k in order:
+        yield j, k, make_frame(spec, j, k, k < n_img).frame
 
 
-def _collect(result, series: dict, image_level: bool) -> None:
-    from shipstar.pipeline import method_series
-
-    parts = [(f"single {s}", method_series(result, "single", s)) for s in result.sensors]
-    if len(result.sensors) > 1:
-        parts += [("seed rule", method_series(result, "seed-rule")), ("joint", method_series(result, "joint"))]
-    for name, rows in parts:
-        series.setdefault(name, []).extend((j1, j2, att, image_level) for j1, j2, att in rows)
+def _collect(emission, names, series: dict, n_img: int) -> None:
+    """Add an emission's single-sensor rows and fused rows to the method series."""
+    for fr in emission.frames:
+        series.setdefault(f"single {fr.sensor}", []).append((fr.utc_jd1, fr.utc_jd2, fr.ship, fr.index < n_img))
+    e = emission.epoch
+    if e is not None and len(names) > 1:
+        image_level = e.frame_index[0] < n_img
+        series.setdefault("seed rule", []).append((e.utc_jd1, e.utc_jd2, e.seed_rule, image_level))
+        series.setdefault("joint", []).append((e.utc_jd1, e.utc_jd2, e.joint, image_level))
 
 
 def _method(name: str, rows: list, truth, start) -> MethodSeries:
@@ -195,24 +201,31 @@ def run_sea(session_cfg, spec, installations: dict, image_level_s: float, out_di
     bar : Progress
     databases : dict of sensor name -> StarDatabase
     """
-    from shipstar._demo._frames import make_frame, n_image_level
-    from shipstar.pipeline import SensorConfig, Track, TruthTable, WeatherTable, process_session
+    from shipstar._demo._frames import n_image_level
+    from shipstar.pipeline import SensorConfig, SensorProcessor, SessionEngine, Track, TruthTable, WeatherTable
+    from shipstar.pipeline._fusion import sensor_roles
 
     files = write_session_tables(spec, out_dir)
     track, weather = Track.read_csv(files["track"]), WeatherTable.read_csv(files["weather"])
     truth = TruthTable.read_csv(files["truth"])
     configs = [SensorConfig(s.name, s.camera, installations[s.name]) for s in spec.sensors]
     options = session_cfg.pipeline_options()
-    series, frames, roles = {}, {s.name: [] for s in spec.sensors}, ("", "")
+    names = [c.name for c in configs]
     n, n_img = min(len(spec.times_s(s)) for s in spec.sensors), n_image_level(spec, image_level_s)
-    for lo, hi, image_level in _chunks(n, n_img):
-        made = [[make_frame(spec, j, k, image_level) for k in range(lo, hi)] for j in range(len(spec.sensors))]
-        result = process_session(configs, [[m.frame for m in per] for per in made], track, weather, options,
-                                 databases=databases, progress=lambda *_: bar.advance())
-        _collect(result, series, image_level)
-        for name, frs in zip(result.sensors, result.frames):
-            frames[name].extend(frs)
-        roles = (result.fore_aft_sensor, result.athwartship_sensor)
+    start = spec.utc_jd(0.0)
+    procs = [SensorProcessor(c, track, weather, options, database=databases.get(c.name)) for c in configs]
+    engine = SessionEngine(configs, options, start_utc_jd=start)
+    series, frames = {f"single {name}": [] for name in names}, {name: [] for name in names}
+    for j, k, frame in _frames_in_time_order(spec, n, n_img):
+        fr = procs[j].process(frame, k, frame.seconds_since(*start))
+        frames[names[j]].append(fr)
+        bar.advance()
+        for emission in engine.add(fr):
+            _collect(emission, names, series, n_img)
+    for emission in engine.finish():
+        _collect(emission, names, series, n_img)
+    fore, athw = sensor_roles(configs)
+    roles = (names[fore] if fore >= 0 else "", names[athw] if athw >= 0 else "")
     start = spec.utc_jd(0.0)
     methods = tuple(_method(name, rows, truth, start) for name, rows in series.items())
     t_truth = truth.t_s + ((truth.jd1_0 - start[0]) + (truth.jd2_0 - start[1])) * 86400.0

@@ -193,8 +193,6 @@ def _settings(args, report):
         d = Path(directory)
         if d.exists() and not d.is_dir():
             raise ShipstarError(f"--sensor {name}={directory}: not a directory")
-        if not d.exists() and not d.parent.is_dir():
-            raise ShipstarError(f"--sensor {name}={directory}: neither it nor its parent {d.parent} exists")
         configs.append(SensorConfig(name, load_camera(cams.get(name, installs[name].camera)), installs[name]))
         dirs.append(d)
     names = [c.name for c in configs]

@@ -95,8 +95,11 @@ class SensorWorkers:
         self._jobs = {c.name: ctx.Queue() for c in configs}
         self._procs = {c.name: ctx.Process(target=_worker_main, args=(c, options, self._jobs[c.name], self.results),
                                            name=f"shipstar-live-{c.name}", daemon=True) for c in configs}
-        for p in self._procs.values():
-            p.start()
+        from shipstar.pipeline._measure import one_blas_thread_for_children
+
+        with one_blas_thread_for_children():
+            for p in self._procs.values():
+                p.start()
 
     def send(self, sensor: str, index: int, frame, t_s: float, site, weather) -> None:
         self._jobs[sensor].put((index, frame, t_s, site, weather))

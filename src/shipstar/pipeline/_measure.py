@@ -35,7 +35,7 @@ import numpy as np
 from shipstar.errors import ShipstarError
 
 __all__ = ["CHUNK_S", "WARMUP_S", "ENGINE_WARMUP_S", "MeasureJob", "MeasureOutcome", "run_measure",
-           "resume_path", "RESUME_VERSION", "default_workers"]
+           "resume_path", "RESUME_VERSION", "default_workers", "one_blas_thread_for_children"]
 
 #: Length of a processing chunk (s).
 CHUNK_S = 60.0
@@ -109,6 +109,25 @@ class MeasureOutcome:
 
 
 # -- tasks (run in workers, or here) ---------------------------------------------------------
+
+_BLAS_THREADS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+class one_blas_thread_for_children:
+    """Context manager: processes spawned inside it start with one BLAS thread each
+    (unless the user set the variables): with a worker per core, BLAS threads of their
+    own only compete for the cores, and small BLAS calls get much slower."""
+
+    def __enter__(self):
+        self._set = [v for v in _BLAS_THREADS if v not in os.environ]
+        for v in self._set:
+            os.environ[v] = "1"
+        return self
+
+    def __exit__(self, *exc):
+        for v in self._set:
+            os.environ.pop(v, None)
+
 
 _JOB: MeasureJob | None = None
 
@@ -232,7 +251,9 @@ class _Runner:
         if workers > 1:
             import multiprocessing
 
-            self.pool = multiprocessing.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=(job,))
+            with one_blas_thread_for_children():
+                self.pool = multiprocessing.get_context("spawn").Pool(workers, initializer=_init_worker,
+                                                                      initargs=(job,))
         self.ahead = max(2 * len(sources), workers + 1)
         self.pending: dict = {}
         self.next_submit = 0
