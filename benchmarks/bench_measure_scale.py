@@ -218,6 +218,7 @@ def main() -> int:
     ap.add_argument("--hours", type=float, default=10.0, help="the long star-list run (default 10 h)")
     ap.add_argument("--image-minutes", type=float, default=6.0, help="the long image run (default 6 min)")
     ap.add_argument("--workdir", type=Path, help="where image sessions are rendered and kept")
+    ap.add_argument("--repeat", type=int, default=3, help="--workers 1 / 2 pairs (default 3)")
     ap.add_argument("--child-starlists", type=float, help=argparse.SUPPRESS)
     ap.add_argument("--workers", type=int, default=2, help=argparse.SUPPRESS)
     ap.add_argument("--out", help=argparse.SUPPRESS)
@@ -240,13 +241,19 @@ def main() -> int:
         if "workers" in parts:
             t1 = measure_images(tiny, 1)
             print(_row("images 2 s (start-up), --workers 1", t1))
-            r1 = measure_images(short, 1)
-            print(_row("images 60 s, --workers 1", r1, t1))
-            same = r1["csv"].read_bytes() == r2["csv"].read_bytes()
-            speedup = r1["wall_s"] / r2["wall_s"]
-            steady = _steady(r1, t1) / _steady(r2, t2)
-            print(f"--workers 2 vs 1 on 60 s: {speedup:.2f}x faster in wall time, {steady:.2f}x in steady ms/frame "
-                  f"(target >= 1.7x: {'PASS' if speedup >= 1.7 else 'FAIL'}); same CSV: {same}")
+            ratios = []
+            for k in range(args.repeat):            # alternated: this shared machine's speed drifts
+                r1 = measure_images(short, 1)
+                print(_row(f"images 60 s, --workers 1 (#{k + 1})", r1, t1))
+                if k:
+                    r2 = measure_images(short, 2)
+                    print(_row(f"images 60 s, --workers 2 (#{k + 1})", r2, t2))
+                ratios.append(r1["wall_s"] / r2["wall_s"])
+                same = r1["csv"].read_bytes() == r2["csv"].read_bytes()
+            speedup = float(np.median(ratios))
+            print(f"--workers 2 vs 1 on 60 s, wall time, pairs run back to back: {', '.join(f'{r:.2f}' for r in ratios)}"
+                  f"x, median {speedup:.2f}x (target >= 1.7x: {'PASS' if speedup >= 1.7 else 'FAIL'}); "
+                  f"the same CSV: {same}")
         if "images" in parts:
             long = render_images(root, 60.0 * args.image_minutes)
             rl = measure_images(long, 2)

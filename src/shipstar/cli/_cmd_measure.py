@@ -185,29 +185,49 @@ def _installations(args) -> dict:
     return by_sensor
 
 
-def _configs(args):
-    """``(configs, sources)``: each sensor's configuration and its indexed FITS frames."""
+def _configs(args) -> list:
+    """Each sensor's configuration (camera and installation)."""
     from shipstar.camera import load_camera
     from shipstar.pipeline import SensorConfig
-    from shipstar.pipeline._sources import FitsDirectorySource
 
     installs = _installations(args)
     cams = dict(args.camera)
     unknown = sorted(set(cams) - {n for n, _ in args.sensor})
     if unknown:
         raise ShipstarError(f"--camera for unknown sensor {unknown[0]!r}")
-    configs, sources = [], []
-    for name, directory in args.sensor:
-        inst = installs[name]
-        camera = load_camera(cams.get(name, inst.camera))
-        configs.append(SensorConfig(name, camera, inst))
+    return [SensorConfig(name, load_camera(cams.get(name, installs[name].camera)), installs[name])
+            for name, _ in args.sensor]
+
+
+def _first_frame_time(directory, date_obs_is: str) -> tuple:
+    """Mid-exposure UTC of a directory's first frame by name (the session's start is the
+    earliest of the sensors'; the full index, read later, checks the order)."""
+    from pathlib import Path
+
+    from shipstar._fitsio import is_fits_name, read_fits_header
+
+    d = Path(directory)
+    if not d.is_dir():
+        raise ShipstarError(f"frames directory {d} does not exist or is not a directory")
+    names = sorted(p.name for p in d.iterdir() if is_fits_name(p.name))
+    if not names:
+        raise ShipstarError(f"no FITS frames (*.fits, *.fit, *.fts, optionally .gz) in {d}")
+    return read_fits_header(d / names[0], date_obs_is=date_obs_is).mid_utc_jd()
+
+
+def _sources(args, configs) -> list:
+    """Each sensor's indexed FITS frames (headers only), their SENSOR names checked."""
+    from shipstar.pipeline._sources import FitsDirectorySource
+
+    sources = []
+    for config, (name, directory) in zip(configs, args.sensor):
         source = FitsDirectorySource(name, directory, date_obs_is=args.date_obs_is)
-        other = sorted(source.sensors_named - {name, camera.name})
+        other = sorted(source.sensors_named - {name, config.camera.name})
         if other:
             raise ShipstarError(f"frames in {directory} are from sensor {other[0]!r} (FITS SENSOR/INSTRUME), "
                                 f"not {name!r}")
         sources.append(source)
-    return configs, sources
+    return sources
 
 
 def _refraction_mismatch(installs: dict, model: str, mode: str) -> list:
@@ -306,22 +326,18 @@ def _check_partial(args) -> None:
 
 
 def _job(args, track, weather):
-    """``(MeasureJob, sources)`` of the command line, everything checked before processing."""
+    """The MeasureJob of the command line (what every worker needs), from the first frame
+    of each sensor; the frames themselves are indexed afterwards (:func:`_sources`)."""
     import warnings
 
     from shipstar.errors import AccuracyWarning
     from shipstar.pipeline import PipelineOptions
     from shipstar.pipeline._measure import MeasureJob
 
-    configs, sources = _configs(args)
+    configs = _configs(args)
     names = [c.name for c in configs]
     if args.reference is not None and args.reference not in names:
         raise ShipstarError(f"reference sensor {args.reference!r} is not one of {', '.join(names)}")
-    for source in sources:
-        jd1, jd2 = source.times_utc_jd()
-        for k in (0, -1):
-            track.check_covers(jd1[k], jd2[k])
-            weather.check_covers(jd1[k], jd2[k])
     for message in _refraction_mismatch({c.name: c.installation for c in configs}, args.refraction,
                                         args.refraction_mode):
         warnings.warn(message, AccuracyWarning, stacklevel=1)
@@ -329,17 +345,24 @@ def _job(args, track, weather):
                               max_pair_offset_s=args.max_pair_offset_s,
                               compensate_motion=not args.no_motion_compensation,
                               streak_correction=not args.no_streak_correction)
-    firsts = [s.times_utc_jd() for s in sources]
-    k = min(range(len(firsts)), key=lambda i: (firsts[i][0][0] - firsts[0][0][0]) + firsts[i][1][0])
-    start = (float(firsts[k][0][0]), float(firsts[k][1][0]))
+    firsts = [_first_frame_time(directory, args.date_obs_is) for _, directory in args.sensor]
+    start = min(firsts, key=lambda jd: (jd[0] - firsts[0][0]) + jd[1])
     ref = names.index(args.reference) if args.reference else 0
-    return MeasureJob(tuple(configs), track, weather, options, start, ref), sources
+    return MeasureJob(tuple(configs), track, weather, options, (float(start[0]), float(start[1])), ref)
+
+
+def _check_covered(sources, track, weather) -> None:
+    for source in sources:
+        jd1, jd2 = source.times_utc_jd()
+        for k in (0, -1):
+            track.check_covers(jd1[k], jd2[k])
+            weather.check_covers(jd1[k], jd2[k])
 
 
 def run(args) -> int:
     from shipstar._signals import EXIT_CODES, StopOnSignals
     from shipstar.pipeline import TruthTable
-    from shipstar.pipeline._measure import default_workers, run_measure
+    from shipstar.pipeline._measure import WorkerPool, default_workers, run_measure
     from shipstar.pipeline._plots import plot_attitude_csv
     from shipstar.pipeline._progress import ProgressBar
 
@@ -347,18 +370,23 @@ def run(args) -> int:
     _check_partial(args)
     track, weather = _site_and_weather(args)
     truth = TruthTable.read_csv(args.truth) if args.truth else None
-    job, sources = _job(args, track, weather)
-    eop = _eop(sources)
-    start_warnings = accuracy_warnings(args)
+    job = _job(args, track, weather)
+    n_workers = args.workers or default_workers()
+    pool = WorkerPool(job, n_workers) if n_workers > 1 else None     # warms up while the frames are indexed
     bar = ProgressBar(True if args.progress else None)
     try:
+        sources = _sources(args, job.configs)
+        _check_covered(sources, track, weather)
+        eop = _eop(sources)
+        start_warnings = accuracy_warnings(args)
         with StopOnSignals() as stop:
             outcome = run_measure(job, sources, args.out, truth=truth, comments=_csv_comments(eop, start_warnings),
-                                  workers=args.workers or default_workers(), resume=args.resume,
-                                  chunk_s=args.chunk_s,
+                                  workers=pool or 1, resume=args.resume, chunk_s=args.chunk_s,
                                   progress=lambda done, total: bar("frames", done, total), stop=stop)
     finally:
         bar.close()
+        if pool is not None:
+            pool.close(abort=True)
     names = [c.name for c in job.configs]
     fore, athw = _roles(job.configs)
     summary = outcome.stats.summary(reference_sensor=names[job.reference], fore_aft_sensor=fore,

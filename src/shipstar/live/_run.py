@@ -110,7 +110,7 @@ class _Sensor:
     """The main loop's state of one sensor (bounded)."""
 
     name: str
-    seen: collections.OrderedDict = field(default_factory=collections.OrderedDict)   # names taken (last 1000)
+    seen: collections.OrderedDict = field(default_factory=collections.OrderedDict)   # name -> file signature
     incomplete: dict = field(default_factory=dict)        # path -> (first seen, last event) monotonic s
     waiting: collections.deque = field(default_factory=collections.deque)  # (index, Frame, arrival s)
     in_flight: int | None = None
@@ -133,14 +133,16 @@ class _Sensor:
     newest_done_jd: tuple | None = None
     reasons: collections.Counter = field(default_factory=collections.Counter)
 
-    def take(self, name: str) -> bool:
-        """Remember a file name; False if it was taken already."""
-        if name in self.seen:
-            return False
-        self.seen[name] = None
+    def take(self, name: str, signature) -> None:
+        """Remember a file taken (the last 1000): ``signature`` = (inode, mtime, size), so
+        that a camera reusing file names still has each new frame taken."""
+        self.seen[name] = signature
+        self.seen.move_to_end(name)
         if len(self.seen) > 1000:
             self.seen.popitem(last=False)
-        return True
+
+    def taken(self, name: str, signature) -> bool:
+        return self.seen.get(name) == signature
 
 
 class _Latency:
@@ -179,6 +181,8 @@ class _Live:
         self.writer = None
         self.stats = None
         self.latency = _Latency()
+        self.eop = settings.eop
+        self._eop_checked = -math.inf
         self.t0 = time.monotonic()
         self.udp = (UdpOutput(settings.udp, settings.fmt, settings.method, self.names, self.names[settings.reference])
                     if settings.udp else None)
@@ -220,7 +224,8 @@ class _Live:
 
         sensor = self.sensors[name]
         p = Path(path)
-        if p.name in sensor.seen or not p.exists():
+        signature = _signature(p)
+        if signature is None or sensor.taken(p.name, signature):
             return
         complete, detail = file_is_complete(p)
         if not complete:
@@ -228,7 +233,7 @@ class _Live:
             sensor.incomplete[path] = (first, when)
             return
         sensor.incomplete.pop(path, None)
-        sensor.take(p.name)
+        sensor.take(p.name, _signature(p))
         self.accept(sensor, p, when)
 
     def accept(self, sensor: _Sensor, path: Path, when: float) -> None:
@@ -292,8 +297,10 @@ class _Live:
         start = (frame.utc_jd1, frame.utc_jd2)
         self.engine = SessionEngine(self.s.configs, self.s.options, start_utc_jd=start, reference=self.s.reference)
         self.stats = SessionStats(self.names)
+        self.eop = self.s.eop or _eop_at(frame)
+        self._eop_checked = time.monotonic()
         if self.s.out_csv is not None:
-            eop = self.s.eop or _eop_at(frame)
+            eop = self.eop
             comments = ["shipstar live: ship attitude (docs/file-formats.md)",
                         f"eop_quality = {eop['quality']}, dut1_error_s = {eop['dut1_error_s']:.3g}, "
                         f"polar_motion_error_arcsec = {eop['polar_motion_error_arcsec']:.3g}"]
@@ -366,7 +373,7 @@ class _Live:
             for path, (first, last) in list(sensor.incomplete.items()):
                 if now - last > self.s.incomplete_timeout_s:
                     del sensor.incomplete[path]
-                    sensor.take(Path(path).name)
+                    sensor.take(Path(path).name, _signature(Path(path)))
                     _, detail = _complete(path)
                     self.report(f"sensor {sensor.name}: {Path(path).name} stayed incomplete for "
                                 f"{now - first:.1f} s ({detail}): not processed")
@@ -404,9 +411,17 @@ class _Live:
             sensor.last_t_s = t_s
         self.done(sensor, index, FrameResult.failed(sensor.name, index, frame, reason))
 
+    def _refresh_eop(self) -> None:
+        """Earth orientation quality at the newest frame's time, every 10 minutes."""
+        newest = [s.newest_done_jd for s in self.sensors.values() if s.newest_done_jd is not None]
+        if newest and time.monotonic() - self._eop_checked > 600.0:
+            self._eop_checked = time.monotonic()
+            self.eop = _eop_at(_Time(*newest[0]))
+
     def status(self) -> dict:
         from shipstar.sky.time import utc_jd_now
 
+        self._refresh_eop()
         now_jd = utc_jd_now()
         sensors = {}
         for s in self.sensors.values():
@@ -419,7 +434,7 @@ class _Live:
         nav = self.s.nav.stats() if self.s.nav is not None else None
         return {"time_utc": _iso(now_jd), "run_s": round(time.monotonic() - self.t0, 3), "sensors": sensors,
                 "epochs": self.stats.n_epochs if self.stats else 0, "latency": self.latency.quantiles_ms(),
-                "eop": self.s.eop, "nav": nav, "warnings": len(self.warnings)}
+                "eop": self.eop, "nav": nav, "warnings": len(self.warnings)}
 
     def send_status(self) -> None:
         from shipstar.live._nmea import SensorHealth
@@ -430,7 +445,7 @@ class _Live:
             health = [SensorHealth(name, s.interval_in, s.interval_out,
                                    st["sensors"][name]["lag_s"], s.interval_unsolved)
                       for name, s in self.sensors.items()]
-            self.udp.status(st, health, utc_jd_now(), self.s.eop)
+            self.udp.status(st, health, utc_jd_now(), self.eop)
         for s in self.sensors.values():
             s.interval_in = s.interval_out = s.interval_unsolved = 0
         stream = self.s.status_stream
@@ -441,8 +456,9 @@ class _Live:
                      for n, v in st["sensors"].items()]
             lat = st["latency"]
             med = "-" if lat["median_ms"] is None else f"{lat['median_ms']:.0f}"
+            eop = (st["eop"] or {}).get("quality", "-")
             stream.write(f"shipstar live: {st['run_s']:.0f} s, {st['epochs']} epochs; " + "; ".join(parts)
-                         + f"; latency median {med} ms\n")
+                         + f"; latency median {med} ms; Earth orientation {eop}\n")
             stream.flush()
 
     # -- the loop ------------------------------------------------------------------------------
@@ -556,10 +572,19 @@ class _Live:
                           "unreadable": s.unreadable})
         summary.update({"out": None if out is None else str(out), "stopped": stopped,
                         "run_s": round(time.monotonic() - self.t0, 3), "latency": self.latency.quantiles_ms(),
-                        "warnings": list(self.warnings), "eop": self.s.eop,
+                        "warnings": list(self.warnings), "eop": self.eop,
                         "nav": self.s.nav.stats() if self.s.nav is not None else None,
                         "udp": {"sent": self.udp.n_sent, "errors": self.udp.n_errors} if self.udp else None})
         return summary
+
+
+def _signature(path: Path):
+    """``(inode, mtime_ns, size)`` of a file, None when it is gone."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return st.st_ino, st.st_mtime_ns, st.st_size
 
 
 def _reason_kind(reason: str) -> str:
@@ -579,7 +604,14 @@ def _iso(jd) -> str:
     return iso_from_utc_jd(jd[0], jd[1], 3)
 
 
+@dataclass(frozen=True)
+class _Time:
+    utc_jd1: float
+    utc_jd2: float
+
+
 def _eop_at(frame) -> dict:
+    """Earth orientation quality at a frame's time (its warnings are the frames' own)."""
     from shipstar.pipeline import eop_quality
 
     return eop_quality([frame.utc_jd1], [frame.utc_jd2]).as_dict()

@@ -15,6 +15,7 @@ is loaded, ``("result", sensor, index, FrameResult, warnings)`` per frame, and
 from __future__ import annotations
 
 import warnings
+from dataclasses import replace
 
 __all__ = ["SensorWorkers"]
 
@@ -24,7 +25,6 @@ def _warm_up(config, options, database, lookup) -> None:
     file, extraction, lost-in-space, sky, attitude), so that the first real frame does
     not pay for imports and first-use caches (0.7 s measured, against 20 ms a frame)."""
     import tempfile
-    from dataclasses import replace
     from pathlib import Path
 
     import numpy as np
@@ -75,7 +75,7 @@ def _worker_main(config, options, jobs, results) -> None:
             fr = proc.process(frame, index, t_s, site=site, weather=weather)
         messages = list(dict.fromkeys(" ".join(str(w.message).split()) for w in caught
                                       if issubclass(w.category, AccuracyWarning)))
-        results.put(("result", config.name, index, fr, messages))
+        results.put(("result", config.name, index, replace(fr, solve_inputs=None), messages))
 
 
 class SensorWorkers:

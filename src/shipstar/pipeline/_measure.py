@@ -27,14 +27,14 @@ import json
 import math
 import os
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from shipstar.errors import ShipstarError
 
-__all__ = ["CHUNK_S", "WARMUP_S", "ENGINE_WARMUP_S", "MeasureJob", "MeasureOutcome", "run_measure",
+__all__ = ["CHUNK_S", "WARMUP_S", "ENGINE_WARMUP_S", "MeasureJob", "MeasureOutcome", "WorkerPool", "run_measure",
            "resume_path", "RESUME_VERSION", "default_workers", "one_blas_thread_for_children"]
 
 #: Length of a processing chunk (s).
@@ -110,16 +110,17 @@ class MeasureOutcome:
 
 # -- tasks (run in workers, or here) ---------------------------------------------------------
 
-_BLAS_THREADS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+_BLAS_THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 class one_blas_thread_for_children:
     """Context manager: processes spawned inside it start with one BLAS thread each
-    (unless the user set the variables): with a worker per core, BLAS threads of their
-    own only compete for the cores, and small BLAS calls get much slower."""
+    (unless the user set the variables), before anything loads a BLAS library: the
+    pipeline's linear algebra is small (3x3 to 15x15, QUEST on a hundred stars), and with
+    a worker per core BLAS threads of their own only compete for the cores."""
 
     def __enter__(self):
-        self._set = [v for v in _BLAS_THREADS if v not in os.environ]
+        self._set = [v for v in _BLAS_THREAD_VARIABLES if v not in os.environ]
         for v in self._set:
             os.environ[v] = "1"
         return self
@@ -132,36 +133,68 @@ class one_blas_thread_for_children:
 _JOB: MeasureJob | None = None
 
 
-def _init_worker(job: MeasureJob) -> None:
-    """Worker start: keep the job; leave SIGINT to the main process (it stops the workers)."""
+def _init_worker(job: MeasureJob, queue) -> None:
+    """Worker start: keep the job, load the catalog and each camera's star database (while
+    the main process is still indexing the frames); leave SIGINT to the main process (it
+    stops the workers)."""
     import signal
 
-    global _JOB
-    _JOB = job
+    from shipstar.pipeline._sensor import _database_for
+    from shipstar.pipeline._stars import default_lookup
+
+    global _JOB, _QUEUE
+    _JOB, _QUEUE = job, queue
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    default_lookup()
+    for config in job.configs:
+        _database_for(config.camera)
 
 
-def _process(job: MeasureJob, sensor: int, piece, lo: int, keep_from: int) -> tuple[list, list]:
-    """Frames ``lo ..`` of one sensor through a fresh processor: ``(results of frames
-    keep_from .., warning messages)``."""
+#: Results a worker sends at a time (frames of one sensor): the main process merges and
+#: writes them while the chunk is still being processed.
+BATCH_FRAMES = 20
+
+
+def _process(job: MeasureJob, sensor: int, piece, lo: int, keep_from: int, batch: int):
+    """Frames ``lo ..`` of one sensor through a fresh processor; yields lists of
+    ``(result, warnings)`` for frames ``keep_from ..`` (``batch`` at a time).  Each warning
+    message is attached to the first result at or after the frame where it arose, so it
+    reaches the CSV at the same place however the work is split."""
     from shipstar.errors import AccuracyWarning
     from shipstar.pipeline._sensor import SensorProcessor
 
     proc = SensorProcessor(job.configs[sensor], job.track, job.weather, job.options)
-    out = []
+    out, held, n_caught = [], [], 0
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", AccuracyWarning)
         for k, frame in enumerate(piece.load(), start=lo):
             fr = proc.process(frame, k, frame.seconds_since(*job.start_utc_jd))
+            for w in caught[n_caught:]:
+                if issubclass(w.category, AccuracyWarning):
+                    m = " ".join(str(w.message).split())
+                    if m not in held:
+                        held.append(m)
+            n_caught = len(caught)
             if k >= keep_from:
-                out.append(fr)
-    messages = list(dict.fromkeys(" ".join(str(w.message).split()) for w in caught
-                                  if issubclass(w.category, AccuracyWarning)))
-    return out, messages
+                out.append((replace(fr, solve_inputs=None), tuple(held)))  # a third less to send
+                held = []
+                if len(out) >= batch:
+                    yield out
+                    out = []
+    if held and out:
+        out[-1] = (out[-1][0], out[-1][1] + tuple(held))
+    yield out
 
 
-def _task(sensor: int, piece, lo: int, keep_from: int) -> tuple[list, list]:
-    return _process(_JOB, sensor, piece, lo, keep_from)
+_QUEUE = None
+
+
+def _task(k: int, sensor: int, piece, lo: int, keep_from: int) -> None:
+    """A worker's task ``k``: its results go to the pool's queue as ``(k, items, done)``."""
+    items = []
+    for items in _process(_JOB, sensor, piece, lo, keep_from, BATCH_FRAMES):
+        _QUEUE.put((k, items, False))
+    _QUEUE.put((k, [], True))
 
 
 # -- the plan --------------------------------------------------------------------------------
@@ -241,55 +274,103 @@ def _read_checkpoint(path: Path, fingerprint: dict, partial: Path) -> dict:
 
 # -- the run ---------------------------------------------------------------------------------
 
-class _Runner:
-    """Runs the tasks in chunk order, here or in a pool, at most ``ahead`` tasks ahead."""
+class WorkerPool:
+    """Worker processes for :func:`run_measure`, started (spawned) as early as possible:
+    each loads the catalog and the star databases while the caller indexes the frames.
 
-    def __init__(self, job: MeasureJob, sources, plan, workers: int, first_chunk: int):
+    Parameters
+    ----------
+    job : MeasureJob
+    workers : int
+        At least 2 (with 1, everything runs in the main process: no pool).
+    """
+
+    def __init__(self, job: MeasureJob, workers: int):
+        import multiprocessing
+
+        self.job, self.workers = job, int(workers)
+        context = multiprocessing.get_context("spawn")
+        self.queue = context.Queue()
+        with one_blas_thread_for_children():
+            self.pool = context.Pool(self.workers, initializer=_init_worker, initargs=(job, self.queue))
+
+    def close(self, abort: bool) -> None:
+        """Stop the workers (``abort``: at once, else after their tasks); idempotent."""
+        if self.pool is None:
+            return
+        if abort:
+            self.pool.terminate()
+        else:
+            self.pool.close()
+        self.pool.join()
+        self.pool = None
+
+
+class _Runner:
+    """Runs the tasks in chunk order, here or in a pool (at most ``ahead`` tasks ahead), and
+    hands out their results batch by batch."""
+
+    def __init__(self, job: MeasureJob, sources, plan, workers, first_chunk: int):
         self.job, self.sources, self.plan = job, sources, plan
         self.order = [c for row in plan[first_chunk:] for c in row]
-        self.pool = None
-        if workers > 1:
-            import multiprocessing
-
-            with one_blas_thread_for_children():
-                self.pool = multiprocessing.get_context("spawn").Pool(workers, initializer=_init_worker,
-                                                                      initargs=(job,))
-        self.ahead = max(2 * len(sources), workers + 1)
-        self.pending: dict = {}
+        self.workers = workers                       # WorkerPool or None
+        n = workers.workers if workers is not None else 1
+        self.ahead = max(2 * len(sources), n + 1)
+        self.pending: dict = {}                      # task -> AsyncResult (pool)
+        self.inbox: dict = {}                        # task -> [(items, done)] received
+        self.local: dict = {}                        # task -> generator (here)
         self.next_submit = 0
 
     def _submit(self) -> None:
-        while self.pool is not None and self.next_submit < len(self.order) and len(self.pending) < self.ahead:
-            c = self.order[self.next_submit]
-            args = (c.sensor, self.sources[c.sensor].piece(c.lo, c.hi), c.lo, c.keep_from)
-            self.pending[self.next_submit] = self.pool.apply_async(_task, args)
+        while self.workers is not None and self.next_submit < len(self.order) and len(self.pending) < self.ahead:
+            k, c = self.next_submit, self.order[self.next_submit]
+            args = (k, c.sensor, self.sources[c.sensor].piece(c.lo, c.hi), c.lo, c.keep_from)
+            self.pending[k] = self.workers.pool.apply_async(_task, args)
+            self.inbox[k] = []
             self.next_submit += 1
 
-    def result(self, k: int, stop) -> tuple[list, list] | None:
-        """Task ``k``'s ``(results, warnings)``; None when ``stop`` was set while waiting."""
-        c = self.order[k]
-        if self.pool is None:
-            return _process(self.job, c.sensor, self.sources[c.sensor].piece(c.lo, c.hi), c.lo, c.keep_from)
+    def next_batch(self, ks, stop):
+        """The next results of any of tasks ``ks``: ``(k, items, done)``; None when ``stop``
+        was set while waiting."""
+        import queue as queue_module
+
+        if self.workers is None:
+            k = ks[0]
+            c = self.order[k]
+            if k not in self.local:
+                self.local[k] = _process(self.job, c.sensor, self.sources[c.sensor].piece(c.lo, c.hi), c.lo,
+                                         c.keep_from, 1 << 30)
+            items = next(self.local[k])
+            del self.local[k]                     # one batch: the whole task
+            return k, items, True
         self._submit()
-        handle = self.pending[k]
-        while not handle.ready():
+        while True:
+            for k in ks:
+                if self.inbox[k]:
+                    items, done = self.inbox[k].pop(0)
+                    if done:
+                        del self.inbox[k]
+                        del self.pending[k]
+                        self._submit()
+                    return k, items, done
             if stop is not None and stop.is_set():
                 return None
-            handle.wait(0.1)
-        del self.pending[k]
-        self._submit()
-        return handle.get()
+            try:
+                k, items, done = self.workers.queue.get(timeout=0.1)
+            except queue_module.Empty:
+                for k in ks:                       # a task that raised: raise its error here
+                    handle = self.pending[k]
+                    if handle.ready() and not handle.successful():
+                        handle.get()
+                continue
+            self.inbox[k].append((items, done))
 
     def close(self, abort: bool) -> None:
-        if self.pool is not None:
-            if abort:
-                self.pool.terminate()
-            else:
-                self.pool.close()
-            self.pool.join()
+        if self.workers is not None:
+            self.workers.close(abort)
 
 
-def run_measure(job: MeasureJob, sources, out, *, truth=None, comments=(), workers: int = 1, resume: bool = False,
+def run_measure(job: MeasureJob, sources, out, *, truth=None, comments=(), workers=1, resume: bool = False,
                 chunk_s: float = CHUNK_S, progress=None, stop=None) -> MeasureOutcome:
     """Process a whole session in chunks, writing the attitude CSV as it goes.
 
@@ -305,8 +386,9 @@ def run_measure(job: MeasureJob, sources, out, *, truth=None, comments=(), worke
         Errors against it in the summary.
     comments : iterable of str
         The CSV's ``#`` lines known at the start.
-    workers : int
-        Worker processes (1: everything in this process; the rows are the same).
+    workers : int or WorkerPool
+        Worker processes (1: everything in this process; the rows are the same), or a
+        pool started earlier for this job (closed on return).
     resume : bool
         Continue a stopped run from its checkpoint.
     chunk_s : float
@@ -345,31 +427,35 @@ def run_measure(job: MeasureJob, sources, out, *, truth=None, comments=(), worke
         first_chunk, resume_t, n_written = 0, None, 0
     total = sum(len(t) for t in times_s)
     done = sum(c.first for c in plan[first_chunk]) if resume else 0
-    runner = _Runner(job, sources, plan, max(1, int(workers)), first_chunk)
+    if not isinstance(workers, WorkerPool):
+        workers = WorkerPool(job, workers) if int(workers) > 1 else None
+    runner = _Runner(job, sources, plan, workers, first_chunk)
     resumed_at = first_chunk * chunk_s if resume else None
     stopped, k = "", 0
     try:
         for row in plan[first_chunk:]:
-            results = []
-            for c in row:
-                got = runner.result(k, stop)
-                k += 1
+            replay = resume_t is not None and row[0].index == first_chunk     # rebuild the engine's state
+            ks = list(range(k, k + len(row)))
+            k += len(row)
+            merge = _Merge(len(row), [0 if replay else c.first - c.keep_from for c in row])
+            while not merge.complete():
+                got = runner.next_batch([kk for kk in ks if not merge.done[kk - ks[0]]], stop)
                 if got is None:
                     break
-                frs, messages = got
-                replay = resume_t is not None and c.index == first_chunk      # rebuild the engine's state
-                results.append(frs if replay else frs[c.first - c.keep_from:])
-                for m in messages:
-                    if m not in seen_warnings:
-                        seen_warnings.append(m)
-                        writer.comment(f"warning: {m}")
-            if len(results) == len(row):
-                merged = sorted(((engine.t_s(fr), s, fr) for s, frs in enumerate(results) for fr in frs),
-                                key=lambda x: x[:2])
-                for _, _, fr in merged:
+                kk, items, done = got
+                for fr, messages in merge.add(kk - ks[0], items, done, engine.t_s) + [(None, merge.orphans)]:
+                    for m in messages:
+                        if m not in seen_warnings:
+                            seen_warnings.append(m)
+                            writer.comment(f"warning: {m}")
+                    if fr is None:
+                        merge.orphans = ()
+                        continue
                     n_written += _write(engine.add(fr), writer, stats, resume_t, seen_warnings)
                     if stop is not None and stop.is_set():
                         break
+                if stop is not None and stop.is_set():
+                    break
             if stop is not None and stop.is_set():
                 stopped = getattr(stop, "reason", "") or "stopped"
                 break
@@ -404,6 +490,50 @@ def run_measure(job: MeasureJob, sources, out, *, truth=None, comments=(), worke
     path = writer.complete()
     checkpoint.unlink(missing_ok=True)
     return MeasureOutcome(stats, True, "", path, tuple(seen_warnings), n_written, resumed_at)
+
+
+class _Merge:
+    """Merges the sensors' result batches of one chunk into time order as they arrive: a
+    result leaves once every sensor still running has sent one at or after its time
+    (ties: sensor order), which is the order a sort of the whole chunk gives."""
+
+    def __init__(self, n_sensors: int, skip: list):
+        self.buffers = [[] for _ in range(n_sensors)]
+        self.last_t = [-math.inf] * n_sensors
+        self.done = [False] * n_sensors
+        self.skip = list(skip)                  # results before the chunk's own frames
+        self.carry = [() for _ in range(n_sensors)]   # their warnings, passed on
+        self.orphans: tuple = ()
+
+    def complete(self) -> bool:
+        return all(self.done) and not any(self.buffers)
+
+    def add(self, s: int, items, done: bool, t_of) -> list:
+        for fr, messages in items:
+            if self.skip[s] > 0:
+                self.skip[s] -= 1
+                self.carry[s] += messages
+                continue
+            if self.carry[s]:
+                messages, self.carry[s] = self.carry[s] + messages, ()
+            t = t_of(fr)
+            self.buffers[s].append((t, s, fr, messages))
+            self.last_t[s] = t
+        self.done[s] = self.done[s] or done
+        if done and self.carry[s]:              # a chunk with none of its own frames
+            self.orphans += self.carry[s]
+            self.carry[s] = ()
+        running = [t for t, d in zip(self.last_t, self.done) if not d]
+        watermark = min(running) if running else math.inf
+        ready = []
+        for b in self.buffers:
+            n = 0
+            while n < len(b) and b[n][0] <= watermark:
+                n += 1
+            ready.extend(b[:n])
+            del b[:n]
+        ready.sort(key=lambda x: x[:2])
+        return [(fr, messages) for _, _, fr, messages in ready]
 
 
 def _write(emissions, writer, stats, resume_t, seen_warnings) -> int:
