@@ -5,7 +5,7 @@ one task: a fresh :class:`~shipstar.pipeline._sensor.SensorProcessor` runs over 
 sensor's frames from :data:`WARMUP_S` before the chunk to its end (the warm-up rebuilds
 the state the frames carry: the tracking prior and the streak correction's motion window,
 so that a chunk's results are those of one uninterrupted pass).  Tasks run in worker
-processes (``workers``, spawned) or in this process (``workers=1``); their results come
+processes (``workers``) or in this process (``workers=1``); their results come
 back in chunk order, are merged in time order and go through one
 :class:`~shipstar.pipeline._engine.SessionEngine` here, whose emissions are written at
 once (:class:`~shipstar.pipeline._output.AttitudeCsvWriter`, ``OUT.partial``) and counted
@@ -274,8 +274,20 @@ def _read_checkpoint(path: Path, fingerprint: dict, partial: Path) -> dict:
 
 # -- the run ---------------------------------------------------------------------------------
 
+def _start_method() -> str:
+    """``fork`` where it is safe (POSIX, no other thread in this process): the workers then
+    share the modules already imported (about 3 s of CPU less per run on two cores than
+    ``spawn``, measured); ``spawn`` otherwise."""
+    import multiprocessing
+    import threading
+
+    if "fork" in multiprocessing.get_all_start_methods() and threading.active_count() == 1:
+        return "fork"
+    return "spawn"
+
+
 class WorkerPool:
-    """Worker processes for :func:`run_measure`, started (spawned) as early as possible:
+    """Worker processes for :func:`run_measure`, started as early as possible:
     each loads the catalog and the star databases while the caller indexes the frames.
 
     Parameters
@@ -289,7 +301,7 @@ class WorkerPool:
         import multiprocessing
 
         self.job, self.workers = job, int(workers)
-        context = multiprocessing.get_context("spawn")
+        context = multiprocessing.get_context(_start_method())
         self.queue = context.Queue()
         with one_blas_thread_for_children():
             self.pool = context.Pool(self.workers, initializer=_init_worker, initargs=(job, self.queue))
