@@ -19,6 +19,11 @@ Both processes run on this machine's cores with the replay's writing (2 MB a fra
 frames/s) and the receiver; run it when the machine is otherwise quiet (``uptime``).
 
 Run: ``python benchmarks/bench_live.py [--duration-s 60] [--workdir DIR] [--keep]``.
+
+``--console [--repeats N]``: instead, the operator console's cost (issue 17): ``live
+--http`` with 0 and then 2 headless Chromium pages connected (Debian's chromium, driven
+over the DevTools pipe, :mod:`shipstar.live._cdp`), N alternated pairs of runs; prints the
+latency median / p99 of each and the difference in p99 (target: under 10 ms).
 """
 
 from __future__ import annotations
@@ -110,12 +115,116 @@ def _joint_rms(rows, truth) -> np.ndarray:
     return np.sqrt(np.mean(err ** 2, axis=0)), len(err)
 
 
+def _live_latency(root: Path, n_browsers: int, tag: str) -> dict:
+    """One replay at 1x into ``live --http`` with ``n_browsers`` headless Chromium pages on
+    the console: the single rows' latency (frame appears -> row on UDP), in ms."""
+    from shipstar.live._cdp import Browser
+    from shipstar.live._replay import plan_replay, replay, session_sensor_dirs, session_tables
+
+    incoming = root / f"incoming-{tag}"
+    shutil.rmtree(incoming, ignore_errors=True)
+    incoming.mkdir()
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    rx = Receiver()
+    rx.start()
+    live = subprocess.Popen([sys.executable, "-m", "shipstar", "live", "--sensor", f"A1={incoming / 'A1'}",
+                             "--sensor", f"A2={incoming / 'A2'}", "--install", "A1.toml", "A2.toml", "--track",
+                             str(incoming / "track.csv"), "--weather", str(incoming / "weather.csv"), "--udp",
+                             f"127.0.0.1:{rx.port}", "--format", "jsonl", "--http", f"127.0.0.1:{port}", "--json",
+                             "--quiet"], cwd=root, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    lines: list = []
+    threading.Thread(target=lambda: lines.extend(live.stderr), daemon=True).start()
+    browsers = []
+    try:
+        while not any("watching" in ln for ln in lines):
+            if live.poll() is not None:
+                raise RuntimeError("".join(lines))
+            time.sleep(0.05)
+        for _ in range(n_browsers):
+            b = Browser(f"http://127.0.0.1:{port}/", width=1280, height=900)
+            b.wait_for("document.getElementById('conn').textContent === 'live'", timeout_s=60)
+            browsers.append(b)
+        time.sleep(3.0 if browsers else 0.0)               # the browsers' start-up settles
+        cpu0 = {"live": _cpu_s(live.pid), "browsers": sum(_cpu_s(b.proc.pid) for b in browsers)}
+        appeared: dict = {}
+        plan = plan_replay(session_sensor_dirs(root / "sea"), session_tables(root / "sea"))
+        replay(plan, incoming, speed=1.0, start_delay_s=0.5, handle_signals=False,
+               on_frame=lambda sensor, name, t: appeared.__setitem__((sensor, name), t))
+        end = time.monotonic() + 30.0
+        while len([r for _, r in rx.rows if r["method"] == "single"]) < len(appeared) and time.monotonic() < end:
+            time.sleep(0.1)
+        cpu = {"live": _cpu_s(live.pid) - cpu0["live"],
+               "browsers": sum(_cpu_s(b.proc.pid) for b in browsers) - cpu0["browsers"]}
+        messages = [b.evaluate("window.shipstarConsole.messages") for b in browsers]
+        errors = [e for b in browsers for e in b.errors]
+    finally:
+        for b in browsers:
+            b.close()
+        live.send_signal(signal.SIGINT)
+        out, _ = live.communicate(timeout=60)
+        rx.stop.set()
+        rx.join()
+    summary = json.loads(out)
+    lat = [(t - appeared[(r["sensor"], r["frame"])]) * 1000 for t, r in rx.rows
+           if r["method"] == "single" and (r["sensor"], r["frame"]) in appeared]
+    skipped = sum(summary["sensors"][s]["skipped_behind"] for s in ("A1", "A2"))
+    return {"browsers": n_browsers, "lat": lat, "skipped": skipped, "messages": messages, "errors": errors,
+            "cpu": cpu}
+
+
+def _cpu_s(pid: int) -> float:
+    """CPU seconds (user + system) of a process and its children so far."""
+    import psutil
+
+    total = 0.0
+    try:
+        procs = [psutil.Process(pid)]
+        procs += procs[0].children(recursive=True)
+    except psutil.Error:
+        return 0.0
+    for p in procs:
+        try:
+            t = p.cpu_times()
+            total += t.user + t.system
+        except psutil.Error:
+            pass
+    return total
+
+
+def console_comparison(root: Path, args) -> int:
+    """``--console``: latency with 0 and 2 browsers on the operator console, alternated."""
+    runs = []
+    for k in range(args.repeats):
+        for n in (0, 2):
+            r = _live_latency(root, n, f"{k}-{n}")
+            runs.append(r)
+            extra = (f", pages got {r['messages']} updates, browser errors {len(r['errors'])}" if n else "")
+            print(f"live --http, {n} browsers: {_q(r['lat'])}, skipped behind {r['skipped']}{extra}; CPU s during "
+                  f"the replay: live {r['cpu']['live']:.1f}, browsers {r['cpu']['browsers']:.1f}", flush=True)
+    agg = {n: np.concatenate([r["lat"] for r in runs if r["browsers"] == n]) for n in (0, 2)}
+    med = {n: float(np.median(v)) for n, v in agg.items()}
+    p99 = {n: float(np.percentile(v, 99)) for n, v in agg.items()}
+    print(f"\n== operator console, {args.duration_s:g} s replayed at 1x x {args.repeats}, {os.cpu_count()} cores, "
+          f"load {os.getloadavg()[0]:.1f}")
+    for n in (0, 2):
+        print(f"{n} browsers: latency median {med[n]:.1f} ms, p99 {p99[n]:.1f} ms (n {len(agg[n])})")
+    diff = p99[2] - p99[0]
+    print(f"p99 with 2 browsers minus with 0: {diff:+.1f} ms ({'PASS' if diff < 10.0 else 'FAIL'}: under 10 ms)")
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration-s", type=float, default=60.0)
     ap.add_argument("--offset-ms", type=float, default=0.0, help="A2 exposes this much after A1 (default 0)")
     ap.add_argument("--workdir", type=Path, help="where the session is rendered (kept; default a temporary dir)")
     ap.add_argument("--browsers", type=int, default=0, help=argparse.SUPPRESS)
+    ap.add_argument("--console", action="store_true",
+                    help="instead: latency with the operator console on (--http), 0 and then 2 headless Chromium "
+                         "pages connected (runs alternated --repeats times)")
+    ap.add_argument("--repeats", type=int, default=1, help="with --console: pairs of runs (default 1)")
     args = ap.parse_args()
 
     from shipstar.live._replay import plan_replay, replay, session_sensor_dirs, session_tables
@@ -128,6 +237,8 @@ def main() -> int:
         root = Path(tmp.name)
     root.mkdir(parents=True, exist_ok=True)
     make_session(root, args.duration_s, args.offset_ms)
+    if args.console:
+        return console_comparison(root, args)
     truth = TruthTable.read_csv(root / "sea" / "truth.csv")
     common = ["--install", "A1.toml", "A2.toml"]
 

@@ -87,17 +87,18 @@ def _rms(summary, method):
 
 def test_track_interpolates_linearly_and_refuses_extrapolation(tmp_path):
     p = tmp_path / "track.csv"
-    p.write_text("time_utc,lat_deg,lon_deg,height_m\n2013-03-15T12:16:00,31.0,179.9,10\n"
-                 "2013-03-15T12:16:10Z,31.1,-179.9,20\n")
+    p.write_text("time_utc,lat_deg,lon_deg,height_m\n2013-03-15T12:16:00,31.0,179.9995,10\n"
+                 "2013-03-15T12:16:10Z,31.001,-179.9995,20\n")                # 146 m in 10 s: a ship
     tr = Track.read_csv(p)
     from shipstar.sky.time import utc_jd_from_iso
 
     site = tr.site(*utc_jd_from_iso("2013-03-15T12:16:02.5"))
-    assert site.lat_rad * RAD2DEG == pytest.approx(31.025, abs=1e-9)
-    assert site.lon_rad * RAD2DEG == pytest.approx(179.95, abs=1e-9)          # across the date line
+    assert site.lat_rad * RAD2DEG == pytest.approx(31.00025, abs=1e-9)
+    assert site.lon_rad * RAD2DEG == pytest.approx(179.99975, abs=1e-9)      # across the date line
     assert site.height_m == pytest.approx(12.5)
+    assert tr.site(*utc_jd_from_iso("2013-03-15T12:16:11")).height_m == 20.0    # 1 s after the last row: held
     with pytest.raises(ShipstarError, match="outside the track"):
-        tr.site(*utc_jd_from_iso("2013-03-15T12:16:11"))
+        tr.site(*utc_jd_from_iso("2013-03-15T12:16:11.1"))
     fixed = Track.fixed(31.9, 120.3)
     assert fixed.site(0.0, 2456367.0).lat_rad == pytest.approx(31.9 * DEG2RAD)
 
@@ -210,8 +211,8 @@ def test_frames_outside_the_track_are_refused():
     spec = dock_session(duration_s=0.3)
     cf = simulate_centroids(spec)
     j1, j2 = spec.utc_jd(0.0)
-    short = Track.from_arrays([j1, j1], [j2, j2 + 0.1 / DAY_S], [31.9, 31.9], [120.3, 120.3])
-    with pytest.raises(ShipstarError, match="outside the track"):
+    short = Track.from_arrays([j1, j1], [j2 - 3.0 / DAY_S, j2 - 2.0 / DAY_S], [31.9, 31.9], [120.3, 120.3])
+    with pytest.raises(ShipstarError, match="outside the track"):                  # frames > 1 s after its end
         process_sensor(SensorConfig("A1", spec.sensors[0].camera), _frames(cf, spec)[0], short,
                        WeatherTable.constant(1021.7, 11.1))
 
@@ -469,9 +470,10 @@ def test_result_times_are_microseconds():
     failure = session_summary(res)["sensors"]["A2"]["failures"][0]
     assert failure == {"frame": bad.label, "time_utc": "2013-03-15T12:16:00.130400Z", "reason": failure["reason"]}
     j1, j2 = spec.utc_jd(0.0)
-    short = Track.from_arrays([j1, j1], [j2, j2 + 0.02 / DAY_S], [31.9, 31.9], [120.3, 120.3])
+    short = Track.from_arrays([j1, j1], [j2 - 2.0 / DAY_S, j2 - 0.98 / DAY_S], [31.9, 31.9], [120.3, 120.3])
     with pytest.raises(ShipstarError, match=r"frame time 2013-03-15T12:16:00\.030400Z is outside the track "
-                                            r"\(2013-03-15T12:16:00\.000000Z to 2013-03-15T12:16:00\.020000Z\)"):
+                                            r"\(2013-03-15T12:15:58\.000000Z to 2013-03-15T12:15:59\.020000Z; "
+                                            r"frames may lie at most 1 s before the first row or after the last\)"):
         short.site(*spec.utc_jd(0.0304))
 
 
@@ -625,9 +627,14 @@ def test_streak_correction_on_rendered_80_ms_frames():
     ok = np.all(np.isfinite(e_raw), axis=1)
     assert ok.sum() >= 7
     pred = np.array([_predicted_bias_arcsec(spec.motion, _session_t(spec, e), T) for e in fixed.epochs])[peak]
-    np.testing.assert_allclose((e_raw - e_fixed)[ok], pred[ok], atol=0.2)
+    # the extraction's fitted centres lie beyond the time averages along these 13-21 px streaks
+    # (k(L) > 1, docs/extraction.md, *Accelerating streaks*): the correction is more than the
+    # time average's -alpha T^2 / 24 on roll, up to 1.5 x where the streaks are longest (before the
+    # model: equal to it within 0.2'', and the joint RMS 0.90 / 0.88 / 0.74'', now 0.31 / 0.26 / 0.28'')
+    moved = (e_raw - e_fixed)[ok][:, 2] / pred[ok][:, 2]
+    assert np.all(moved > 0.95) and np.all(moved < 2.0) and moved.max() > 1.3, moved
     rms_raw, rms_fixed = rms_arcsec(e_raw), rms_arcsec(e_fixed)
-    assert rms_raw[2] > 2.5 and rms_fixed[2] < 1.2 and rms_fixed[1] < 1.2 < rms_raw[1]
+    assert rms_raw[2] > 2.5 and np.all(rms_fixed < 0.5) and rms_raw[1] > 1.2
 
 
 def _rendered(sim, label):

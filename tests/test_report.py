@@ -237,7 +237,7 @@ def test_session_report_rms_against_an_independent_truth(short_session, tmp_path
     assert rows["joint"][0] == f"{len(result.epochs)}/{len(result.epochs)}"
     assert [float(x) for x in rows["joint"][4:7]] == pytest.approx(rms, abs=0.006)
     assert rows["A1"][:3] == ["10", "10", "0"]                # frames, solved, failed
-    assert text.count("data:image/png;base64,") == 1 and "attitude errors" in text
+    assert text.count("data:image/png;base64,") == 3 and "attitude errors" in text    # + availability, monitor
 
 
 def test_session_report_without_truth_compares_with_joint(short_session, tmp_path):

@@ -362,3 +362,60 @@ def wrap_pi(angle_rad):
     """Angle(s) wrapped into (-pi, pi]."""
     a = np.asarray(angle_rad, float)
     return np.pi - np.mod(np.pi - a, TWO_PI)
+
+
+# -- sign conventions of other attitude sources (an INS, docs/conventions.md) --------------
+
+__all__ += ["AttitudeConvention"]
+
+_ROLL_WORDS = {"port-up": 1.0, "starboard-down": 1.0, "starboard-up": -1.0, "port-down": -1.0}
+_PITCH_WORDS = {"bow-up": 1.0, "stern-down": 1.0, "bow-down": -1.0, "stern-up": -1.0}
+
+
+class AttitudeConvention:
+    """The signs of another source's heading, pitch and roll, mapped to shipstar's.
+
+    Written ``"roll=port-up,pitch=bow-up,heading=true"`` (any order, any part left out
+    takes shipstar's own: roll positive port up = starboard down, pitch positive bow up,
+    heading true, from north through east).  ``roll`` is ``port-up`` (= ``starboard-down``)
+    or ``starboard-up`` (= ``port-down``); ``pitch`` is ``bow-up`` (= ``stern-down``) or
+    ``bow-down`` (= ``stern-up``); ``heading`` only ``true``.  Rates follow their angles.
+    """
+
+    __slots__ = ("roll_sign", "pitch_sign", "text")
+
+    def __init__(self, text: str = ""):
+        from shipstar.errors import ShipstarError
+
+        roll, pitch = 1.0, 1.0
+        for part in (p.strip() for p in str(text).split(",")):
+            if not part:
+                continue
+            key, sep, value = (s.strip().lower() for s in part.partition("="))
+            if not sep:
+                raise ShipstarError(f"INS convention {part!r}: write key=value (roll=port-up|starboard-up, "
+                                    f"pitch=bow-up|bow-down, heading=true)")
+            if key == "roll" and value in _ROLL_WORDS:
+                roll = _ROLL_WORDS[value]
+            elif key == "pitch" and value in _PITCH_WORDS:
+                pitch = _PITCH_WORDS[value]
+            elif key == "heading" and value == "true":
+                pass
+            else:
+                raise ShipstarError(f"INS convention {part!r}: roll must be port-up or starboard-up, pitch bow-up "
+                                    f"or bow-down, heading true")
+        self.roll_sign, self.pitch_sign = roll, pitch
+        self.text = (f"roll={'port-up' if roll > 0 else 'starboard-up'},"
+                     f"pitch={'bow-up' if pitch > 0 else 'bow-down'},heading=true")
+
+    def __repr__(self) -> str:
+        return f"AttitudeConvention({self.text!r})"
+
+    def to_shipstar(self, heading, pitch, roll):
+        """The source's (heading, pitch, roll) (or their rates) as shipstar's."""
+        return heading, self.pitch_sign * np.asarray(pitch, float), self.roll_sign * np.asarray(roll, float)
+
+    def from_shipstar(self, heading, pitch, roll):
+        """shipstar's (heading, pitch, roll) (or rates) as the source writes them (the same signs:
+        each mapping is its own inverse)."""
+        return self.to_shipstar(heading, pitch, roll)

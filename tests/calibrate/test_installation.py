@@ -162,11 +162,14 @@ def test_failed_frames_are_counted_and_too_few_refused():
 def test_toml_round_trip(tmp_path):
     dock = DockConditions(HEADING, 0.0, 0.0, 31.9 * DEG2RAD, 120.3 * DEG2RAD, 0.0, 1021.7, 11.1, "erfa", "per-star",
                           xi_rad=4.25 * ASEC2RAD, eta_rad=-7.5 * ASEC2RAD, eop_quality="extrapolated",
-                          dut1_error_s=0.0123, polar_motion_error_arcsec=0.04)
+                          dut1_error_s=0.0123, polar_motion_error_arcsec=0.04, relative_humidity=0.4,
+                          humidity_source="given", wavelength_um=0.6, eop_source="/data/finals2000A.all")
+    budget = ({"source": "wavelength", "sigma": "0.05 um", "az_arcsec": 0.0, "el_arcsec": 0.22, "roll_arcsec": 0.0},)
     inst = Installation(sensor="A1", camera="A1", az_rad=A1[0], el_rad=A1[1], roll_rad=A1[2],
                         std_arcsec=(9.1835, 5.8931, 63.552), sem_arcsec=(0.7, 0.5, 5.0), n_frames=160, n_used=158,
                         n_failed=1, n_rejected=1, session="dock-2013-03-15", date_utc="2013-03-15T12:16:00.000Z",
-                        dock=dock, warnings=('Earth orientation "extrapolated"\n 30 days',))
+                        dock=dock, warnings=('Earth orientation "extrapolated"\n 30 days',),
+                        total_arcsec=(2.1, 1.1, 5.2), uncertainty=budget)
     path = tmp_path / "A1.install.toml"
     save_installation(inst, path)
     text = path.read_text()
@@ -189,7 +192,7 @@ def test_toml_round_trip(tmp_path):
     ('format_version = 9\nsensor = "A1"\ncamera = "A1"\naz_deg = 1.0\nel_deg = 2.0\nroll_deg = 0.0\n',
      "format_version"),
     ('camera = "A1"\naz_deg = 1.0\nel_deg = 2.0\nroll_deg = 0.0\n', "missing sensor"),
-    ('sensor = "A1"\ncamera = "A1"\naz_deg = 1.0\nel_deg = 95.0\nroll_deg = 0.0\n', "outside"),
+    ('sensor = "A1"\ncamera = "A1"\naz_deg = 1.0\nel_deg = 95.0\nroll_deg = 0.0\n', r"el_deg must be within \[-90, 90\]"),
     ('sensor = "A1"\ncamera = "A1"\naz_deg = 1.0\nel_deg = 2.0\nroll_deg = 0.0\n[dock]\npitch_deg = 1\n',
      "missing dock.heading_deg"),
     ("this is = = not toml", "not valid TOML"),

@@ -114,7 +114,7 @@ def test_frames_that_do_not_identify(command, dock, tmp_path):
     out = tmp_path / "x.toml"
     proc = _run(command, ["--frames", str(tmp_path / "noise"), "--sensor", "A1", "--camera", "A1", *COMMON,
                           "--out", str(out)], dock)
-    _assert_bad_input(proc, "sensor A1: 0 of 3 frames solved", "not identified")
+    _assert_bad_input(proc, "sensor A1: 0 of 3 frames solved", "clouded")    # noise only: no stars where ~50 are expected
     assert not out.exists()
 
 
@@ -192,7 +192,7 @@ def test_extrapolated_earth_orientation_is_recorded_and_warned_once(command, tmp
       "--pressure-hpa", "1021.7", "--temperature-c", "11.1"], "--heading-deg"),
     (["--frames", "dock/A1", "--sensor", "A1", "--camera", "A1", *COMMON[:-1], "nan"], "--temperature-c"),
     (["--frames", "dock/A1", "--sensor", "A1", "--camera", "A1", *COMMON[:-1], "99"], "temperature_c"),
-    (["--frames", "dock/A1", "--sensor", "A2", "--camera", "A2", *COMMON], "from sensor 'A1'"),
+    (["--frames", "dock/A1", "--sensor", "A2", "--camera", "A2", *COMMON], "SENSOR = 'A1'"),
     (["--frames", "dock/nowhere", "--sensor", "A1", "--camera", "A1", *COMMON], "nowhere"),
     (["--frames", "dock/A1", "--sensor", "A1", "--camera", "B7", *COMMON], "B7"),
     (["--frames", "dock", "--sensor", "A1", "--camera", "A1", *COMMON], "no FITS frames"),

@@ -108,6 +108,7 @@ def test_sea_session_two_sensors(session):
         "# shipstar measure: ship attitude (docs/file-formats.md)",
         f"# eop_quality = {e['quality']}, dut1_error_s = {e['dut1_error_s']:.3g}, "
         f"polar_motion_error_arcsec = {e['polar_motion_error_arcsec']:.3g}",
+        f"# eop_source = {e['source']}",
         "# warnings at the start: none (a warning that arises later is written where it arises)"]
     assert summary["warnings"] == []
     # 10 ms exposures at sea: the streak correction is a few hundredths of an arcsecond;
@@ -150,7 +151,7 @@ def test_a_failing_frame_is_reported_with_exit_1(session, tmp_path):
     proc = _run(["--sensor", f"A1={tmp_path / 'A1'}", "--install", "A1.toml", *DOCK_SITE,
                  "--out", str(tmp_path / "a.csv")], session)
     assert proc.returncode == 1, proc.stderr
-    assert "1 frames failed" in proc.stderr and "A1_00001b.fits" in proc.stderr
+    assert "1 of 4 frames unsolved" in proc.stderr and "A1_00001b.fits" in proc.stderr
     rows = _rows(tmp_path / "a.csv")
     bad = [r for r in rows if r["solved"] == "0"]
     assert len(rows) == 4 and len(bad) == 1 and bad[0]["frame"] == "A1_00001b.fits" and bad[0]["reason"]
@@ -203,7 +204,7 @@ def test_sensor_whose_frames_do_not_identify(session, tmp_path):
      "must be finite"),
     (["--sensor", "A1=dock/A1", "--install", "A1.toml", "--track", "late.csv", *DOCK_SITE[4:]],
      "outside the track"),
-    (["--sensor", "A1=dock/A2", "--install", "A1.toml", *DOCK_SITE], "from sensor 'A2'"),
+    (["--sensor", "A1=dock/A2", "--install", "A1.toml", *DOCK_SITE], "SENSOR = 'A2'"),
     (["--sensor", "A1", "--install", "A1.toml", *DOCK_SITE], "NAME=VALUE"),
     (["--sensor", "A1=nowhere", "--install", "A1.toml", *DOCK_SITE], "nowhere"),
 ])
@@ -254,7 +255,8 @@ def test_refraction_model_other_than_the_dock_calibration_is_warned(session, tmp
                                "'almanac' but this run uses 'erfa': they differ by 0.4")
     assert summary["warnings"] == [lines[0].split("warning: ", 1)[1]]
     assert summary["eop"]["quality"] == "measured" and summary["eop"]["dut1_error_s"] < 1e-3
-    assert _comments(tmp_path / "x.csv")[2:] == [f"# warning: {summary['warnings'][0]}"]
+    assert _comments(tmp_path / "x.csv")[2:] == [f"# eop_source = {summary['eop']['source']}",
+                                                  f"# warning: {summary['warnings'][0]}"]
     proc = _run(["--sensor", "A1=dock/A1", "--install", str(tmp_path / "A1.toml"), *DOCK_SITE,
                  "--refraction", "almanac", "--out", str(tmp_path / "y.csv"), "--json"], session)
     assert proc.returncode == 0 and proc.stderr == "" and json.loads(proc.stdout)["warnings"] == []

@@ -241,9 +241,10 @@ def test_rank_by_flux_is_stable_and_puts_non_finite_last():
     assert order.tolist() == [2, 0, 3, 5, 1, 4]
 
 
-def test_the_pipeline_keeps_elongated_objects_and_identification_rejects_them(db_a1, cam_a1):
-    """A bright satellite trail (flagged elongated, the brightest object) is passed to
-    identification with the stars, ranked by flux, and left unidentified."""
+def test_the_pipeline_drops_a_trail_before_identification(db_a1, cam_a1):
+    """A bright satellite trail (flagged elongated, the brightest object, 42 px long) is
+    rejected before identification (pipeline/_conditions.py, extract/_artifacts.py): every
+    other detection reaches it and the frame identifies."""
     from shipstar.extract import FLAG_ELONGATED, extract_stars
     from shipstar.pipeline import Frame, SensorConfig, Track, WeatherTable, process_sensor
     from shipstar.simulate._render import FalseObjects, render_frame, star_signal_e
@@ -260,7 +261,7 @@ def test_the_pipeline_keeps_elongated_objects_and_identification_rejects_them(db
     jd = utc_jd_from_iso("2013-03-15T12:16:00")
     (res,) = process_sensor(SensorConfig("A1", cam_a1), [Frame(*jd, "trail", image=image)],
                             Track.fixed(31.9, 120.3), WeatherTable.constant(1013.0, 10.0))
-    assert res.identification == "lost_in_space" and res.n_detected == len(ex.xy_px)
+    assert res.identification == "lost_in_space" and res.n_detected == len(ex.xy_px) - 1
     assert res.n_identified >= 0.8 * len(f.xy_px)
 
 

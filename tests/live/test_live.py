@@ -136,7 +136,8 @@ def test_live_sends_the_rows_measure_writes(session, tmp_path):
     live = Live(session, ["--sensor", f"A1={incoming / 'A1'}", "--sensor", f"A2={incoming / 'A2'}", "--install",
                           "A1.toml", "A2.toml", "--track", str(incoming / "track.csv"), "--weather",
                           str(incoming / "weather.csv"), "--out", str(tmp_path / "live.csv"), "--udp",
-                          f"127.0.0.1:{rx.port}", "--format", "jsonl", "--json"])
+                          f"127.0.0.1:{rx.port}", "--format", "jsonl", "--json",
+                          "--max-waiting", "100"])       # never skip, even on a loaded machine: every row compared
     try:
         live.wait_line("watching")
         result = _replay(session, incoming)
@@ -162,7 +163,8 @@ def test_live_sends_the_rows_measure_writes(session, tmp_path):
                 assert obj[col] is None
             elif col in ("solved", "n_stars"):
                 assert obj[col] == int(text)
-            elif col in ("t_s", "heading_deg", "pitch_deg", "roll_deg") or col.startswith(("sigma", "rms")):
+            elif col in ("t_s", "heading_deg", "pitch_deg", "roll_deg", "integrity_chi2") or \
+                    col.startswith(("sigma", "rms")):
                 assert obj[col] == float(text)
             else:
                 assert obj[col] == text
@@ -213,7 +215,7 @@ def test_nmea_out_with_the_position_from_nmea_in(session, tmp_path):
     incoming.mkdir()
     live = Live(session, ["--sensor", f"A1={incoming / 'A1'}", "--sensor", f"A2={incoming / 'A2'}", "--install",
                           "A1.toml", "A2.toml", "--nav-udp", f"127.0.0.1:{nav_port}", "--udp",
-                          f"127.0.0.1:{rx.port}", "--format", "nmea", "--quiet"])
+                          f"127.0.0.1:{rx.port}", "--format", "nmea", "--quiet", "--max-waiting", "100"])
     sender = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
         live.wait_line("watching")
@@ -276,7 +278,7 @@ def test_bad_frames_are_reported_and_counted(session, tmp_path):
         (incoming / s).mkdir(parents=True)
     live = Live(session, ["--sensor", f"A1={incoming / 'A1'}", "--sensor", f"A2={incoming / 'A2'}", "--install",
                           "A1.toml", "A2.toml", "--track", "sea/track.csv", "--weather", "sea/weather.csv",
-                          "--out", str(tmp_path / "live.csv"), "--json", "--quiet"])
+                          "--out", str(tmp_path / "live.csv"), "--json", "--quiet", "--max-waiting", "100"])
 
     def put(sensor, src, name=None):
         tmp = incoming / sensor / f".{src.name}.part"

@@ -53,7 +53,7 @@ def test_track_interpolates_linearly_between_fixes():
 
 def test_track_reads_like_the_pipeline_track():
     jd1, jd2 = zip(*(at(s) for s in (0.0, 1.0, 2.5, 4.0)))
-    lat, lon = [10.0, 10.001, 10.002, 10.0035], [-20.0, -20.002, -20.004, -20.005]
+    lat, lon = [10.0, 10.00001, 10.00002, 10.000035], [-20.0, -20.00002, -20.00004, -20.00005]   # ~2.5 m/s
     ref = Track.from_arrays(jd1, jd2, lat, lon, [1.0, 2.0, 3.0, 4.0], xi_arcsec=[4.2] * 4, eta_arcsec=[-7.5] * 4)
     live = LiveTrack()
     for row in zip(jd1, jd2, lat, lon, [1.0, 2.0, 3.0, 4.0]):
@@ -139,8 +139,11 @@ def test_track_is_thread_safe():
         if last is not None:
             try:
                 track.site(*last)
-            except ShipstarError as exc:                          # only "not yet" is acceptable
-                errors.append(str(exc))
+            except ShipstarError as exc:
+                # acceptable: the time asked for has already left the 50-fix window (the
+                # writer ran on between the two calls: a slow reader on a loaded machine)
+                if "first kept fix" not in str(exc):
+                    errors.append(str(exc))
     th.join()
     assert not errors and len(track) == 50
 
@@ -238,7 +241,7 @@ def test_receiver_applies_gga_zda_mda_xdr_and_reports_bad_sentences(receiver):
     assert lines[0].startswith("nav UDP: bad checksum in '$GPGGA,121602.00,")
     assert lines[0].endswith(f"(expected {xor_hex(body)}, got 00)")
     assert lines[1].startswith("nav UDP: GGA field 2 (latitude): 91 deg is beyond 90 in '$GPGGA,121602.00,9100")
-    assert lines[2].startswith("nav UDP: MDA field 3 (pressure): 0 hPa is outside 500-1200 hPa in '$WIMDA,")
+    assert lines[2].startswith("nav UDP: MDA field 3 (pressure): 0 hPa is outside 500-1100 hPa in '$WIMDA,")
     assert lines[3].startswith("nav UDP: live track: fix at 2013-03-15T12:16:00.500000Z is not after the newest "
                                "one (2013-03-15T12:16:01.000000Z); refused in '$GPGGA,121600.50")
     assert lines[4] == "nav UDP: no '$' at the start of 'hello'"

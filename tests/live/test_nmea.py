@@ -327,14 +327,14 @@ def test_decode_zda_values_and_nonsense():
 
 
 @pytest.mark.parametrize("body, message", [
-    ("WIMDA,0.0,I,0.0,B,11.1,C,,,,,,,,,,,,,,", "MDA field 3 (pressure): 0 hPa is outside 500-1200 hPa"),
-    ("WIMDA,,,-1.0,B,11.1,C,,,,,,,,,,,,,,", "MDA field 3 (pressure): -1000 hPa is outside 500-1200 hPa"),
+    ("WIMDA,0.0,I,0.0,B,11.1,C,,,,,,,,,,,,,,", "MDA field 3 (pressure): 0 hPa is outside 500-1100 hPa"),
+    ("WIMDA,,,-1.0,B,11.1,C,,,,,,,,,,,,,,", "MDA field 3 (pressure): -1000 hPa is outside 500-1100 hPa"),
     ("WIMDA,30.0,I,,,11.1,C,,,,,,,,,,,,,,", None),
-    ("WIMDA,,,1.0,B,70.0,C,,,,,,,,,,,,,,", "MDA field 5 (air temperature): 70 C is outside -80..+60 C"),
+    ("WIMDA,,,1.0,B,70.0,C,,,,,,,,,,,,,,", "MDA field 5 (air temperature): 70 C is outside -60..+60 C"),
     ("WIMDA,,,1.0,B,11.0,F,,,,,,,,,,,,,,", "MDA field 6 (air temperature unit): 'F' is not C"),
     ("WIMDA,,,1.0,B,11.0,C,,,120,,,,,,,,,,,", "MDA field 9 (relative humidity): 120 % is outside 0-100 %"),
-    ("WIXDR,P,-0.5,B,BARO", "XDR field 2 (pressure): -500 hPa is outside 500-1200 hPa"),
-    ("WIXDR,P,101325,P,BARO,C,-81,C,T", "XDR field 6 (air temperature): -81 C is outside -80..+60 C"),
+    ("WIXDR,P,-0.5,B,BARO", "XDR field 2 (pressure): -500 hPa is outside 500-1100 hPa"),
+    ("WIXDR,P,101325,P,BARO,C,-81,C,T", "XDR field 6 (air temperature): -81 C is outside -60..+60 C"),
     ("WIXDR,A,1.0,D,PITCH", "XDR: no pressure, air temperature or humidity in it"),
     ("WIXDR,P,1.0,B", "XDR: 3 fields, not groups of four (type, value, unit, id)"),
 ])

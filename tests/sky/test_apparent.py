@@ -293,7 +293,7 @@ def test_apparent_command_refuses_a_longitude_out_of_range():
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in proc.stderr
-    assert "longitude 1e+308 deg is outside [-180, 360]" in lines[0]
+    assert "longitude must be within [-180, 360] deg" in lines[0] and "got 1e+308" in lines[0]
 
 
 def test_frame_context_validation():

@@ -101,6 +101,26 @@ def _databases(spec, bar) -> dict:
     return out
 
 
+#: What a demo writes into its output folder: an earlier demo's are removed before a new
+#: run, so that no old ``config-used/`` or report is left beside the new results.
+DEMO_OUTPUTS = ("report.html", "results.json", "config-used", "dock", "sea")
+
+
+def _clean_earlier_demo(out: Path) -> None:
+    """Remove an earlier demo's outputs (:data:`DEMO_OUTPUTS`) from ``out``; nothing else
+    in the folder is touched."""
+    import shutil
+
+    if not out.is_dir() or not any((out / n).exists() for n in ("results.json", "report.html", "config-used")):
+        return
+    for name in DEMO_OUTPUTS:
+        p = out / name
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p)
+        elif p.exists() or p.is_symlink():
+            p.unlink()
+
+
 def _save_installations(dock, out_dir: Path) -> dict:
     from shipstar.calibrate.installation import save_installation
 
@@ -146,6 +166,7 @@ def run_demo(out_dir, *, quick: bool = False, plan: DemoPlan | None = None, conf
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise ShipstarError(f"output {out} exists and is not a directory")
+    _clean_earlier_demo(out)
     bar = Progress() if progress is None else progress
     timing = {}
     t0 = time.perf_counter()

@@ -38,6 +38,14 @@ class DockConditions:
     dut1_error_s, polar_motion_error_arcsec : float
         Largest estimated UT1 - UTC and polar motion errors over the frames (NaN when
         not recorded).
+    relative_humidity : float
+        Relative humidity used for refraction (NaN when not recorded).
+    humidity_source : str
+        ``"given"``, or ``"default"`` when 0 (dry air) was assumed (``""``: not recorded).
+    wavelength_um : float
+        Effective wavelength used for refraction: the camera's ``wavelength_um``.
+    eop_source : str
+        The IERS table Earth orientation came from (``--eop FILE`` or the packaged one).
     """
 
     heading_rad: float
@@ -55,6 +63,10 @@ class DockConditions:
     eop_quality: str = ""
     dut1_error_s: float = math.nan
     polar_motion_error_arcsec: float = math.nan
+    relative_humidity: float = math.nan
+    humidity_source: str = ""
+    wavelength_um: float = math.nan
+    eop_source: str = ""
 
     @property
     def C_hor_from_deck(self) -> np.ndarray:
@@ -96,6 +108,21 @@ class Installation:
     warnings : tuple of str
         Accuracy warnings raised while the session was processed (e.g. extrapolated
         Earth orientation), one line each.
+    trust_flags : bool
+        The calibration was run with ``--trust-flags``: the flags were used where the
+        frames' FITS headers contradicted them (docs/file-formats.md, "Header cross-checks").
+    header_overrides : tuple of str
+        With ``trust_flags``: the contradictions overridden, one line per header card.
+    total_arcsec : tuple of 3 floats
+        Total uncertainty of (A, E, gamma): the sem and the systematic budget in
+        quadrature (docs/uncertainty.md); NaN when not computed.
+    uncertainty : tuple of dict
+        The budget's rows: ``{"source", "sigma", "az_arcsec", "el_arcsec", "roll_arcsec"}``.
+    at_sea : dict or None
+        Provenance of an installation re-estimated at sea relative to a reference sensor
+        (``calibrate install --at-sea``, cli/_calibrate_at_sea.py): reference sensor, time
+        span, the rotation applied (deck axes) with its sigma, the file it was applied to;
+        None for a dock calibration.
     """
 
     sensor: str
@@ -113,6 +140,11 @@ class Installation:
     date_utc: str = ""
     dock: DockConditions | None = field(default=None)
     warnings: tuple = ()
+    trust_flags: bool = False
+    header_overrides: tuple = ()
+    total_arcsec: tuple = (math.nan, math.nan, math.nan)
+    uncertainty: tuple = ()
+    at_sea: dict | None = field(default=None)
 
     def __post_init__(self):
         for name in ("az_rad", "el_rad", "roll_rad"):
@@ -125,6 +157,7 @@ class Installation:
         if not isinstance(self.sensor, str) or not self.sensor:
             raise ShipstarError("installation sensor name must be a non-empty string")
         object.__setattr__(self, "warnings", tuple(" ".join(str(w).split()) for w in self.warnings))
+        object.__setattr__(self, "header_overrides", tuple(" ".join(str(w).split()) for w in self.header_overrides))
 
     @property
     def C_deck_from_sensor(self) -> np.ndarray:

@@ -1,6 +1,6 @@
 """Calibration frames from a directory: FITS images or JSON star lists.
 
-**FITS images** (``*.fits``, ``*.fit``, ``*.fts``; as ``shipstar simulate`` writes them):
+**FITS images** (``*.fits``, ``*.fit``, ``*.fts``, each optionally ``.gz``: :func:`shipstar._fitsio.is_fits_name`, the one set every command reads; as ``shipstar simulate`` writes them):
 the stars are extracted and identified (:func:`shipstar.identify.solve_image`, with a
 focal length known to +-5 % and centroids to +-3 px, since the camera is not calibrated
 yet).  They are read by :mod:`shipstar._fitsio` (the one FITS reader): the time is the
@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from shipstar._fitsio import DATE_OBS_CHOICES, FITS_SUFFIXES, NO_DATE_TEXT
+from shipstar._fitsio import DATE_OBS_CHOICES, FITS_SUFFIXES, NO_DATE_TEXT, is_fits_name
 from shipstar.errors import ShipstarError
 
 __all__ = ["LoadedFrames", "load_calibration_frames", "FITS_SUFFIXES",
@@ -183,6 +183,18 @@ def _fits_stars(path: Path, camera, database, date_obs_is: str = "start"):
     return np.asarray(res.xy_px, float)[keep], np.asarray(res.hip, np.int64)[keep], meta
 
 
+def _check_meta_ranges(meta: _Meta) -> None:
+    """The site and weather a frame's header (or star list) gives, within the physical
+    ranges of every entry point (:mod:`shipstar.limits`): ``PRESSURE = 0`` is refused."""
+    from shipstar.limits import check_range
+
+    for attr, key in (("lat_deg", "SITELAT"), ("lon_deg", "SITELONG"), ("pressure_hpa", "PRESSURE"),
+                      ("temperature_c", "TEMPERAT"), ("relative_humidity", "relative_humidity")):
+        value = getattr(meta, attr, None)
+        if value is not None:
+            check_range(attr, value, label=f"{key} ({attr})", where=f"frame {meta.label!r}")
+
+
 def _frame_from(xy, hip, meta: _Meta, overrides: dict, catalog):
     from shipstar.calibrate.intrinsics import calibration_frame
     from shipstar.sky.apparent import Site
@@ -196,6 +208,7 @@ def _frame_from(xy, hip, meta: _Meta, overrides: dict, catalog):
         raise ShipstarError(f"frame {meta.label!r} has no observation time (DATE-OBS / \"date_obs\"); "
                             "give it with --date-obs")
     jd = utc_jd_from_iso(str(utc).strip())
+    _check_meta_ranges(meta)
     site = overrides.get("site")
     if site is None and meta.lat_deg is not None and meta.lon_deg is not None:
         site = Site.from_deg(meta.lat_deg, meta.lon_deg, meta.height_m)
@@ -213,7 +226,7 @@ def _frame_from(xy, hip, meta: _Meta, overrides: dict, catalog):
 
 def load_calibration_frames(directory, camera, *, utc: str | None = None, site=None,
                             weather=None, refraction_model: str | None = None,
-                            catalog=None, date_obs_is: str = "start") -> LoadedFrames:
+                            catalog=None, date_obs_is: str = "start", progress=None) -> LoadedFrames:
     """Read every frame of ``directory`` (FITS images, else JSON star lists).
 
     Parameters
@@ -231,6 +244,11 @@ def load_calibration_frames(directory, camera, *, utc: str | None = None, site=N
     date_obs_is : {"start", "mid"}
         What the FITS files' DATE-OBS means when they have no DATE-AVG / DATE-BEG (the
         FITS standard: the start of the exposure).
+    progress : callable(what, done, total), optional
+        Called after each file (:class:`shipstar.pipeline._progress.ProgressBar`).
+
+    A FITS file that cannot be read (truncated, not FITS, another image size) is skipped
+    and listed with its reason, as every other command does with a frame that fails.
 
     Raises
     ------
@@ -244,7 +262,7 @@ def load_calibration_frames(directory, camera, *, utc: str | None = None, site=N
     if not root.is_dir():
         raise ShipstarError(f"frames directory {str(root)!r} does not exist or is not a directory")
     files = sorted(p for p in root.iterdir() if p.is_file())
-    fits_files = [p for p in files if p.name.lower().endswith(FITS_SUFFIXES)]
+    fits_files = [p for p in files if is_fits_name(p.name)]
     json_files = [p for p in files if p.suffix.lower() == ".json"
                   and not p.name.lower().endswith(".truth.json")]
     if not fits_files and not json_files:
@@ -261,8 +279,17 @@ def load_calibration_frames(directory, camera, *, utc: str | None = None, site=N
 
         database = build_database(camera, fov_tolerance=IDENTIFY_FOV_TOLERANCE)
     frames, skipped = [], []
-    for path in fits_files or json_files:
-        got = _fits_stars(path, camera, database, date_obs_is) if fits_files else _json_stars(path)
+    todo = fits_files or json_files
+    for k, path in enumerate(todo):
+        if fits_files:
+            try:
+                got = _fits_stars(path, camera, database, date_obs_is)
+            except (ShipstarError, OSError, ValueError) as exc:
+                got = f"unreadable: {exc}"
+        else:
+            got = _json_stars(path)
+        if progress is not None:
+            progress("frames", k + 1, len(todo))
         if isinstance(got, str):
             skipped.append((path.name, got))
             continue

@@ -27,7 +27,7 @@ PRESETS = ("A1", "A2", "seed002", "seed004")
 
 _CAMERA_KEYS = tuple(f.name for f in fields(Camera) if f.name != "distortion")
 _DISTORTION_KEYS = tuple(f.name for f in fields(Distortion))
-_OPTIONAL_KEYS = frozenset({"notes"})
+_OPTIONAL_KEYS = frozenset({"notes", "wavelength_um", "wavelength_sigma_um"})   # default when absent
 
 
 def _one_line(text: str) -> str:

@@ -75,6 +75,10 @@ _SPEC: dict[str, tuple] = {
     "adc_bits": ("int", 1, True, 32),
     "psf_sigma_px": ("float",) + _POS,
     "notes": ("str",),
+    # effective wavelength of the passband for refraction: the range shipstar.sky.refraction's
+    # Weather accepts (ERFA refco's); its 1-sigma uncertainty enters the uncertainty budget
+    "wavelength_um": ("float", 0.3, True, 2.5),
+    "wavelength_sigma_um": ("float", 0.0, True, 1.0),
 }
 
 
@@ -148,6 +152,13 @@ class Camera:
         Sigma of the Gaussian (defocused) star image.
     notes : str
         Where the numbers come from.
+    wavelength_um : float
+        Effective wavelength of the passband for refraction (um, 0.3-2.5, default 0.55):
+        every command that computes refraction for this camera's frames, and the simulator
+        rendering them, use it (docs/camera.md, *Refraction wavelength*).
+    wavelength_sigma_um : float
+        Its 1-sigma uncertainty (um, default 0.05), propagated into the total uncertainty
+        (docs/uncertainty.md).
 
     The photometric fields default to sensor A1's (docs/camera.md).  Every field is
     validated on construction (and by :meth:`replace`): a bad value raises
@@ -177,6 +188,8 @@ class Camera:
     adc_bits: int = 12
     psf_sigma_px: float = 0.8
     notes: str = ""
+    wavelength_um: float = 0.55
+    wavelength_sigma_um: float = 0.05
 
     def __post_init__(self):
         label = self.name if isinstance(self.name, str) else repr(self.name)

@@ -47,7 +47,19 @@ class OneLineErrorParser(argparse.ArgumentParser):
 
     Sub-parsers made with ``add_subparsers`` inherit the class, so every command and
     sub-command behaves the same way.
+
+    Options are never guessed from a prefix (``allow_abbrev=False``: ``measure --ins FILE``
+    is an unrecognized argument, not ``--install``), and a negative angle in degrees,
+    minutes and seconds (``--lat-deg -33d51m``) is a value, as a negative number is.
     """
+
+    def __init__(self, *args, **kwargs):
+        import re
+
+        kwargs["allow_abbrev"] = False
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = re.compile(r"^-\d+$|^-\d*\.\d+$|^-\d+(?:\.\d*)?(?:[eE][-+]?\d+)?$"
+                                                   r"|^-\d+\s*[dD°:]")
 
     def error(self, message: str):  # noqa: D102 - argparse API
         print(f"{self.prog}: error: {message} (see '{self.prog} --help')", file=sys.stderr)
@@ -90,7 +102,12 @@ def main(argv=None) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", AccuracyWarning)
         args.caught_warnings = caught
+        eop_before = _eop_env()
         try:
+            if getattr(args, "eop", None):          # --eop FILE: every command that has it
+                from shipstar.cli._model_inputs import apply_eop
+
+                apply_eop(args)
             code = int(args.run(args) or 0)
         except ShipstarError as exc:
             if args.debug:
@@ -100,13 +117,30 @@ def main(argv=None) -> int:
         except (OSError, MemoryError) as exc:
             if args.debug:
                 raise
-            print(f"{where}: error: {exc.__class__.__name__}: {exc}", file=sys.stderr)
+            from shipstar.cli._oserror import os_error_message
+
+            print(f"{where}: error: {os_error_message(exc, args)}", file=sys.stderr)
             return EXIT_BAD_INPUT
         except KeyboardInterrupt:
             print(f"{where}: interrupted", file=sys.stderr)
             return 130
+        finally:
+            _eop_env(eop_before)                      # an in-process call leaves no --eop behind
     _print_warnings(where, caught)
     return code
+
+
+def _eop_env(value=False):
+    """The ``--eop`` table in force for this process (no argument), or put ``value`` back."""
+    import os
+
+    name = "SHIPSTAR_EOP_FILE"
+    if value is False:
+        return os.environ.get(name)
+    if value is None:
+        os.environ.pop(name, None)
+    else:
+        os.environ[name] = value
 
 
 def _command_name(args) -> str:

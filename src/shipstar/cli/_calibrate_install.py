@@ -17,7 +17,17 @@ from shipstar.cli._common import (
     add_weather_arguments,
     check_output_file,
     emit_json,
-    finite_float,
+    in_range,
+)
+
+from shipstar.cli._header_checks import add_trust_flags_argument, override_record, print_overrides
+from shipstar.cli._model_inputs import (
+    add_model_input_arguments,
+    apply_eop,
+    humidity,
+    installation_with_uncertainty,
+    print_uncertainty,
+    uncertainty_report,
 )
 
 __all__ = ["add_install_parser", "run_install"]
@@ -43,7 +53,8 @@ the frames are averaged on SO(3) after rejecting outliers, and the installation 
 written with their per-frame std and standard error (docs/calibration-dock.md), the dock
 conditions (weather, refraction model, deflection of the vertical), the Earth orientation
 quality and any accuracy warnings.
-Exit codes: 0 every frame solved; 1 written, but some frames failed (listed); 2 bad input.
+Exit codes: 0 every frame solved and used; 1 written, but some frames failed (listed) or
+were rejected as outliers of the mean (the counts on one line on stderr); 2 bad input.
 """
 
 
@@ -72,30 +83,53 @@ def add_install_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--sensor", required=True, metavar="NAME", help="sensor name, e.g. A1")
     p.add_argument("--camera", required=True, metavar="NAME|FILE", help="camera preset or camera TOML file")
     add_site_arguments(p, SITE_HELPS, required=True)
-    p.add_argument("--heading-deg", required=True, type=finite_float, help="true ship heading K0 (deg)")
-    p.add_argument("--pitch-deg", type=finite_float, default=0.0, help="ship pitch psi0 from the levels (deg)")
-    p.add_argument("--roll-deg", type=finite_float, default=0.0, help="ship roll theta0 from the levels (deg)")
+    p.add_argument("--heading-deg", required=True, type=in_range("heading_deg"),
+                   help="true ship heading K0 (deg: 46.474586, 46d28m28.51s or 46:28:28.51)")
+    p.add_argument("--pitch-deg", type=in_range("pitch_deg"), default=0.0, help="ship pitch psi0 from the levels (deg)")
+    p.add_argument("--roll-deg", type=in_range("roll_deg"), default=0.0, help="ship roll theta0 from the levels (deg)")
     add_weather_arguments(p, WEATHER_HELPS, required=True)
     add_refraction_arguments(p, "refraction model (default erfa; almanac = the seeds' model)",
                              "per-star refraction (default) or the seed's ref. [9] boresight-only correction")
     add_date_obs_is_argument(p)
+    add_trust_flags_argument(p)
+    add_model_input_arguments(p, dock=True)      # --eop, input sigmas, humidity "not given" (docs/uncertainty.md)
     p.add_argument("--session", metavar="LABEL", help="session label recorded in the file (default: DIR)")
     p.add_argument("--out", required=True, metavar="FILE.toml", help="installation file to write")
     p.add_argument("--progress", action="store_true", help="progress bar on stderr (default: only on a terminal)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--at-sea", action="store_true",
+                   help="re-estimate the installation from at-sea frames relative to a reference sensor instead "
+                        "(other options: 'shipstar calibrate install --at-sea --help')")
     p.set_defaults(run=run_install)
+    _route_at_sea(p)
     return p
+
+
+def _route_at_sea(p) -> None:
+    """Arguments with ``--at-sea`` go to that mode's own parser (cli/_calibrate_at_sea.py)."""
+    from shipstar.cli._calibrate_at_sea import AT_SEA_FLAG, at_sea_parser
+
+    dock_parse = p.parse_known_args
+
+    def parse_known_args(args=None, namespace=None):
+        if args is not None and AT_SEA_FLAG in args:
+            return at_sea_parser(f"{p.prog} {AT_SEA_FLAG}", type(p)).parse_known_args(args, namespace)
+        return dock_parse(args, namespace)
+
+    p.parse_known_args = parse_known_args
 
 
 def _process(args, camera):
     from shipstar.pipeline import PipelineOptions, SensorConfig, Track, WeatherTable, process_sensor, scan_frames
-    from shipstar.pipeline._frames import check_sensor_name
+    from shipstar.cli._header_checks import header_check
     from shipstar.pipeline._progress import ProgressBar
 
-    frames = scan_frames(args.frames, date_obs_is=args.date_obs_is)
-    check_sensor_name(frames, args.sensor, camera.name, args.frames)
     track = Track.fixed(args.lat_deg, args.lon_deg, args.height_m, args.xi_arcsec, args.eta_arcsec)
-    weather = WeatherTable.constant(args.pressure_hpa, args.temperature_c, args.relative_humidity)
+    weather = WeatherTable.constant(args.pressure_hpa, args.temperature_c, humidity(args)[0])
+    args.header_check = header_check(args, names=(args.sensor, camera.name), camera=camera, track=track,
+                                     weather=weather, given_name=f"--sensor {args.sensor} (camera {camera.name})",
+                                     position_flags=True, weather_flags=True)
+    frames = scan_frames(args.frames, date_obs_is=args.date_obs_is, check=args.header_check)
     options = PipelineOptions(refraction_model=args.refraction, refraction=args.refraction_mode)
     bar = ProgressBar(True if args.progress else None)
     try:
@@ -120,10 +154,18 @@ def _calibrate(args, camera, frames, results):
                           eop_quality=eop.quality, dut1_error_s=eop.dut1_error_s,
                           polar_motion_error_arcsec=eop.polar_motion_error_arcsec)
     C_hs = np.array([r.C_hor_from_sensor for r in results])
+    record = override_record([args.header_check])
     return calibrate_installation(
         C_hs, dock.C_hor_from_deck, solved=[r.solved for r in results], sensor=args.sensor, camera=camera.name,
         reasons=[r.reason for r in results], session=args.session or str(args.frames),
-        date_utc=frames[0].utc_iso, dock=dock, warnings=tuple(accuracy_warnings(args)))
+        date_utc=frames[0].utc_iso, dock=dock, warnings=tuple(accuracy_warnings(args)),
+        trust_flags=bool(record), header_overrides=tuple(_override_lines(record)))
+
+
+def _override_lines(record: dict) -> list:
+    from shipstar.pipeline._header_check import override_lines
+
+    return override_lines(record.get("header_overrides", []))
 
 
 def _report(inst, results, out) -> dict:
@@ -166,17 +208,29 @@ def run_install(args) -> int:
 
     check_output_file(args.out, "--out")
     camera = load_camera(args.camera)
+    apply_eop(args)
     frames, results = _process(args, camera)
-    inst = _calibrate(args, camera, frames, results)
+    inst = installation_with_uncertainty(args, camera, _calibrate(args, camera, frames, results), frames)
     save_installation(inst, args.out)
     rep = _report(inst, results, args.out)
+    rep.update(uncertainty_report(inst))
+    rep.update(override_record([args.header_check]))
+    print_overrides("calibrate install", rep)
     if args.json:
         emit_json(rep)
     else:
         _print_text(rep)
-    if rep["failures"]:
-        print(f"shipstar calibrate install: {len(rep['failures'])} of {len(results)} frames failed "
-              f"(first: {rep['failures'][0]['frame']}: {rep['failures'][0]['reason']})", file=sys.stderr)
+        print_uncertainty(rep)
+    if rep["failures"] or rep["n_rejected"]:
+        parts = []
+        if rep["failures"]:
+            parts.append(f"{len(rep['failures'])} of {len(results)} frames failed "
+                         f"(first: {rep['failures'][0]['frame']}: {rep['failures'][0]['reason']})")
+        if rep["n_rejected"]:
+            parts.append(f"{rep['n_rejected']} of {len(results)} frames rejected as inconsistent with the others "
+                         f"(outliers of the mean installation)")
+        print(f"shipstar calibrate install: {'; '.join(parts)}; {rep['out']} written from the "
+              f"{rep['n_used']} frames used", file=sys.stderr)
         return 1
     return 0
 

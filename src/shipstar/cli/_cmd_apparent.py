@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from shipstar.cli._common import emit_json, finite_float, fraction, latitude_deg
+from shipstar.cli._common import emit_json, finite_float, in_range, latitude_deg, longitude_deg
 
 EPILOG = """\
 example (the seeds' dock, Jiangyin, 2013-03-15 20:16 local time):
@@ -36,7 +36,7 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--time", required=True, metavar="ISO",
                    help="UTC time, ISO 8601, e.g. 2013-03-15T12:16:00 (optional Z, fractions)")
     p.add_argument("--lat-deg", required=True, type=latitude_deg, help="geodetic latitude (deg)")
-    p.add_argument("--lon-deg", required=True, type=finite_float, help="longitude, east positive (deg)")
+    p.add_argument("--lon-deg", required=True, type=longitude_deg, help="longitude, east positive (deg)")
     p.add_argument("--height-m", type=finite_float, default=0.0, help="height above WGS84 (m)")
     p.add_argument("--xi-arcsec", type=finite_float, default=0.0,
                    help="deflection of the vertical, north-south component (arcsec, default 0)")
@@ -44,16 +44,19 @@ def register(subparsers) -> argparse.ArgumentParser:
                    help="deflection of the vertical, east-west component (arcsec, default 0)")
     p.add_argument("--refraction", choices=("erfa", "almanac", "none"), default="erfa",
                    help="refraction model (default erfa, good to 0.02'' above 15 deg; almanac = the seeds' model)")
-    p.add_argument("--pressure-hpa", type=finite_float, default=1013.25, help="air pressure (hPa)")
-    p.add_argument("--temperature-c", type=finite_float, default=10.0, help="air temperature (C)")
-    p.add_argument("--relative-humidity", type=fraction, default=0.0,
+    p.add_argument("--pressure-hpa", type=in_range("pressure_hpa"), default=1013.25, help="air pressure (hPa)")
+    p.add_argument("--temperature-c", type=in_range("temperature_c"), default=10.0, help="air temperature (C)")
+    p.add_argument("--relative-humidity", type=in_range("relative_humidity"), default=0.0,
                    help="relative humidity 0..1 (erfa model only)")
-    p.add_argument("--wavelength-um", type=finite_float, default=0.55,
+    p.add_argument("--wavelength-um", type=in_range("wavelength_um"), default=0.55,
                    help="effective wavelength (um, erfa model only)")
     p.add_argument("--hip", type=int, nargs="+", metavar="N", help="only these HIP numbers")
     p.add_argument("--mag-limit", type=finite_float, default=None,
                    help=f"faintest Hp magnitude (default {DEFAULT_MAG_LIMIT:g}; not with --hip)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    from shipstar.cli._model_inputs import add_eop_argument
+
+    add_eop_argument(p)
     p.set_defaults(run=run)
     return p
 

@@ -20,6 +20,8 @@ from shipstar.cli._common import (
     emit_json,
 )
 
+from shipstar.cli._header_checks import add_trust_flags_argument
+
 __all__ = ["register"]
 
 GROUP_EPILOG = """\
@@ -117,11 +119,16 @@ def _add_intrinsics_parser(sub) -> argparse.ArgumentParser:
                              default=None)
     p.add_argument("--in-space", action="store_true",
                    help="the frames were taken above the atmosphere: no site, no refraction")
+    add_trust_flags_argument(p)
     p.add_argument("--out", required=True, metavar="FILE.toml", help="calibrated camera file to write")
     p.add_argument("--plot", metavar="FILE.png",
                    help="residual-vector plot (default: next to --out, <name>.residuals.png)")
     p.add_argument("--no-plot", action="store_true", help="do not write the plot")
+    p.add_argument("--progress", action="store_true", help="progress bar on stderr (default: only on a terminal)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    from shipstar.cli._model_inputs import add_eop_argument
+
+    add_eop_argument(p)
     p.set_defaults(run=run_intrinsics)
     return p
 
@@ -156,6 +163,12 @@ def _calibrated_camera(cal, args):
     notes = (f"calibrated by shipstar calibrate intrinsics: method {cal.method}, terms "
              f"{','.join(t for t in cal.fitted[3:]) or 'none'}, {cal.n_frames} frames, {cal.n_stars} stars "
              f"from {args.frames}; interstar rms {cal.rms_after_arcsec:.3f} arcsec")
+    record = getattr(args, "header_record", {})
+    if record:
+        from shipstar.pipeline._header_check import override_lines
+
+        lines = override_lines(record["header_overrides"])
+        notes += "; trust_flags = true" + (": " + "; ".join(lines) if lines else " (no header contradiction)")
     return cal.camera.replace(notes=notes)
 
 
@@ -211,6 +224,24 @@ def _warn_unsupported(cal) -> None:
                       "supported ones)", AccuracyWarning, stacklevel=1)
 
 
+def _check_headers(args, camera, site, weather) -> dict:
+    """The FITS frames' headers against --camera, --lat-deg/--lon-deg and the weather
+    flags (when given: without them the headers' own values are used); ShipstarError on
+    a contradiction, the override record with --trust-flags."""
+    from shipstar.cli._header_checks import check_fits_dir, header_check, override_record, print_overrides
+    from shipstar.pipeline import Track, WeatherTable
+
+    track = None if site is None else Track.fixed(args.lat_deg, args.lon_deg, args.height_m)
+    table = None if weather is None else WeatherTable.constant(weather.pressure_hpa, weather.temperature_c,
+                                                               weather.relative_humidity)
+    check = header_check(args, names=(camera.name,), camera=camera, track=track, weather=table,
+                         given_name=f"--camera {args.camera}", position_flags=True, weather_flags=True)
+    check_fits_dir(args.frames, check, args.date_obs_is)
+    record = override_record([check])
+    print_overrides("calibrate intrinsics", record)
+    return record
+
+
 def run_intrinsics(args) -> int:
     from shipstar.calibrate.intrinsics import calibrate_intrinsics, load_calibration_frames, plot_residuals
     from shipstar.camera import load_camera, save_camera
@@ -219,8 +250,16 @@ def run_intrinsics(args) -> int:
     _check_arguments(args)
     camera = load_camera(args.camera)
     site, weather = _site_and_weather(args)
-    loaded = load_calibration_frames(args.frames, camera, utc=args.date_obs, site=site, weather=weather,
-                                     refraction_model=args.refraction, date_obs_is=args.date_obs_is)
+    args.header_record = _check_headers(args, camera, site, weather)
+    from shipstar.pipeline._progress import ProgressBar
+
+    bar = ProgressBar(True if args.progress else None)
+    try:
+        loaded = load_calibration_frames(args.frames, camera, utc=args.date_obs, site=site, weather=weather,
+                                         refraction_model=args.refraction, date_obs_is=args.date_obs_is,
+                                         progress=bar)
+    finally:
+        bar.close()
     if not loaded.frames:
         reasons = "; ".join(f"{n}: {r}" for n, r in loaded.skipped[:3])
         raise ShipstarError(f"no usable frame in {args.frames!r} ({reasons})")
@@ -238,8 +277,14 @@ def run_intrinsics(args) -> int:
         obj = cal.as_json_dict()
         obj.update(frames_dir=str(args.frames), source=loaded.kind, out=out_path, plot=plot_path,
                    skipped=[{"file": n, "reason": r} for n, r in loaded.skipped], in_space=bool(args.in_space),
-                   warnings=accuracy_warnings(args))
+                   warnings=accuracy_warnings(args), **args.header_record)
         emit_json(obj)
     else:
         _print_table(cal, out_path, plot_path, loaded.skipped)
+    if cal.solved and loaded.skipped:
+        n = len(loaded.skipped) + len(loaded.frames)
+        name, reason = loaded.skipped[0]
+        print(f"shipstar calibrate intrinsics: {len(loaded.skipped)} of {n} frames skipped (first: {name}: "
+              f"{reason}); {out_path} written from the other {len(loaded.frames)}", file=sys.stderr)
+        return 1
     return 0 if cal.solved else 1

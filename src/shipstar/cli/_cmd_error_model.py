@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from shipstar.cli._common import atomic_write_text, emit_json, finite_float
+from shipstar.cli._common import angle_deg, atomic_write_text, emit_json, finite_float
 from shipstar.errors import ShipstarError
 
 EPILOG = """\
@@ -40,9 +40,10 @@ def register(subparsers) -> argparse.ArgumentParser:
                    help="1-sigma errors of the sensor's horizontal azimuth, elevation, roll (default 3 3 100)")
     p.add_argument("--install-errors-arcsec", metavar=("A0", "E0", "G0"), default=[1.0, 1.0, 20.0], **f3,
                    help="1-sigma errors of the installation azimuth, elevation, roll (default 1 1 20)")
-    p.add_argument("--sensor-angles-deg", metavar=("AS", "ES", "GS"), default=[235.0, 45.0, 90.0], **f3,
+    d3 = dict(nargs=3, type=angle_deg)
+    p.add_argument("--sensor-angles-deg", metavar=("AS", "ES", "GS"), default=[235.0, 45.0, 90.0], **d3,
                    help="sensor horizontal attitude of the budget point (default seed 001: 235 45 90)")
-    p.add_argument("--install-angles-deg", metavar=("A0", "E0", "G0"), default=[0.0, 35.0, 0.0], **f3,
+    p.add_argument("--install-angles-deg", metavar=("A0", "E0", "G0"), default=[0.0, 35.0, 0.0], **d3,
                    help="installation angles of the budget point (default seed 001: 0 35 0)")
     p.add_argument("--convention", choices=("shipstar", "seed001-factors"), default="shipstar",
                    help="observation model: seed 001 eq. 1-4 as printed (default) or the seed's factors eq. 8-38")
@@ -53,12 +54,13 @@ def register(subparsers) -> argparse.ArgumentParser:
                    help="sweep one angle (curves for A0 = 0/90/180/270), or 'seed': all of seed 001's "
                         "figures, its headline and conclusions")
     p.add_argument("--points", type=int, default=361, help="points per sweep (default 361)")
-    p.add_argument("--lock-margin-deg", type=finite_float, default=1.0,
+    p.add_argument("--lock-margin-deg", type=angle_deg, default=1.0,
                    help="flag points with ship pitch this close to +-90 deg (default 1)")
     p.add_argument("--mc-samples", type=int, default=20000, help="Monte Carlo samples (default 20000)")
     p.add_argument("--rng-seed", type=int, default=1, help="Monte Carlo random seed (default 1)")
     _register_layout(p)
     p.add_argument("--out", required=True, metavar="DIR", help="directory for the JSON, CSV and PNG files")
+    p.add_argument("--progress", action="store_true", help="progress bar on stderr (default: only on a terminal)")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.set_defaults(run=run)
     return p
@@ -67,22 +69,22 @@ def register(subparsers) -> argparse.ArgumentParser:
 def _register_layout(p) -> None:
     g = p.add_argument_group("layout (with --layout)")
     g.add_argument("--layout", action="store_true", help="find the best installation of one and of two sensors")
-    g.add_argument("--fov-deg", type=finite_float, default=8.0, help="sensor field of view (default 8)")
+    g.add_argument("--fov-deg", type=angle_deg, default=8.0, help="sensor field of view (default 8)")
     g.add_argument("--n-stars", type=finite_float, help="stars per frame (default: from --mag-limit)")
     g.add_argument("--mag-limit", type=finite_float, default=6.5,
                    help="magnitude limit for the expected star count (default 6.5)")
     g.add_argument("--star-sigma-arcsec", type=finite_float, default=3.0,
                    help="direction noise of one star (default 3, about 0.1 px of an 8 deg 1024 px sensor)")
-    g.add_argument("--az-range-deg", nargs=2, type=finite_float, default=[0.0, 360.0], metavar=("MIN", "MAX"),
+    g.add_argument("--az-range-deg", nargs=2, type=angle_deg, default=[0.0, 360.0], metavar=("MIN", "MAX"),
                    help="allowed installation azimuth from the bow toward starboard (default 0 360)")
-    g.add_argument("--el-range-deg", nargs=2, type=finite_float, default=[30.0, 60.0], metavar=("MIN", "MAX"),
+    g.add_argument("--el-range-deg", nargs=2, type=angle_deg, default=[30.0, 60.0], metavar=("MIN", "MAX"),
                    help="allowed installation elevation above the deck (default 30 60)")
-    g.add_argument("--ship-attitude-deg", nargs=2, type=finite_float, action="append", metavar=("PITCH", "ROLL"),
+    g.add_argument("--ship-attitude-deg", nargs=2, type=angle_deg, action="append", metavar=("PITCH", "ROLL"),
                    help="ship attitude to average over (repeatable; default level)")
     g.add_argument("--objective", choices=("max", "rss", "heading", "pitch", "roll"), default="max",
                    help="what to minimise: the largest of the heading/pitch/roll 1-sigma (default), their RSS, "
                         "or one of them")
-    g.add_argument("--step-deg", type=finite_float, default=2.0, help="layout grid step (default 2)")
+    g.add_argument("--step-deg", type=angle_deg, default=2.0, help="layout grid step (default 2)")
 
 
 def _deg_dict(names, values):
@@ -200,11 +202,34 @@ def _print_text(result) -> None:
     print(f"files in {result['out_dir']}")
 
 
+#: Largest --points: a sweep's memory grows by ~20 kB a point (``--sweep seed``: 0.46 GB
+#: and 33 s at 20000 points, 3.6 GB at 200000), so 10000 points stay within ~0.25 GB.
+MAX_POINTS = 10000
+#: Largest --mc-samples: ~0.35 kB a sample (0.8 GB at 2 million), so 1 million stay within ~0.4 GB.
+MAX_MC_SAMPLES = 1_000_000
+
+
+def _check_limits(args) -> None:
+    """Refuse sizes whose memory would not fit a shared machine (killed with no message)."""
+    if args.points > MAX_POINTS:
+        raise ShipstarError(f"--points {args.points} is above the limit of {MAX_POINTS} (a sweep takes ~20 kB a "
+                            f"point: {args.points} would need ~{args.points * 20e3 / 1e9:.1f} GB); the curves are "
+                            f"smooth, 361 (one a degree) resolve them")
+    if args.mc_samples > MAX_MC_SAMPLES:
+        raise ShipstarError(f"--mc-samples {args.mc_samples} is above the limit of {MAX_MC_SAMPLES} (~0.35 kB a "
+                            f"sample: ~{args.mc_samples * 350 / 1e9:.1f} GB); the check's sampling error is "
+                            f"1/sqrt(2 N), 0.07 % at the limit")
+
+
 def run(args) -> int:
     from pathlib import Path
 
     import shipstar.errormodel as em
+    from shipstar.pipeline._progress import ProgressBar
 
+    _check_limits(args)
+    bar = ProgressBar(True if args.progress else None)
+    steps = 1 + bool(args.sweep) + bool(args.layout)
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
     result = {
@@ -215,11 +240,18 @@ def run(args) -> int:
         "install_errors_arcsec": _deg_dict(("A0", "E0", "g0"), args.install_errors_arcsec),
         "out_dir": str(out_dir),
     }
-    result.update(_budget_section(args, em))
-    if args.sweep:
-        result.update(_sweep_section(args, em, out_dir))
-    if args.layout:
-        result.update(_layout_section(args, em, out_dir))
+    bar("error model", 0, steps)
+    try:
+        result.update(_budget_section(args, em))
+        bar("error model", 1, steps)
+        if args.sweep:
+            result.update(_sweep_section(args, em, out_dir))
+            bar("error model", 2, steps)
+        if args.layout:
+            result.update(_layout_section(args, em, out_dir))
+            bar("error model", steps, steps)
+    finally:
+        bar.close()
     try:
         text = json.dumps(result, allow_nan=False, indent=1)
     except ValueError as exc:

@@ -16,6 +16,7 @@ from shipstar.cli._common import (
     float_in_range,
     int_in_range,
 )
+from shipstar.cli._header_checks import add_trust_flags_argument, header_check
 from shipstar.errors import ShipstarError
 
 __all__ = ["register", "run"]
@@ -51,7 +52,9 @@ row, keys exactly the CSV's columns, numbers as numbers, empty as null) or nmea 
 datagram per epoch: $PSSTA at full precision, $HEHDT, $PASHR; the attitude of --method
 joint, seed-rule or single); docs/file-formats.md.  Every second a status line on
 stderr and a status message on UDP ({"kind": "status", ...} or $PSSTS): frames in and
-out per sensor, lag, unsolved reasons, latency, Earth orientation quality.
+out per sensor, lag, unsolved reasons, latency, Earth orientation quality.  --http
+[HOST:]PORT serves the read-only operator console, a web page updated 4 times a second
+(HOST default 127.0.0.1; docs/live.md, Operator console).
 
 A sensor that falls behind skips to its newest frames (each skipped frame an unsolved
 row, reason 'skipped (behind)'); a sensor whose frames stop is fused without until it
@@ -87,6 +90,7 @@ def register(subparsers) -> argparse.ArgumentParser:
     add_refraction_arguments(o, "refraction model (default erfa; almanac = the seeds')",
                              "per-star (default) or the seed's boresight-only refraction")
     add_date_obs_is_argument(o)
+    add_trust_flags_argument(o)
     o.add_argument("--reference", metavar="NAME", help="sensor whose frame times are the epochs (default first)")
     o.add_argument("--max-pair-offset-s", type=_non_negative, default=0.06,
                    help="largest time offset of paired frames (s, default 0.06)")
@@ -102,9 +106,22 @@ def register(subparsers) -> argparse.ArgumentParser:
                    help="the attitude the NMEA sentences carry (default joint; single: the reference sensor)")
     r.add_argument("--stop-after-s", type=float_in_range(0.0, None, "> 0"), metavar="S",
                    help="stop after this many seconds (default: at SIGINT / SIGTERM)")
+    r.add_argument("--http", metavar="[HOST:]PORT",
+                   help="serve the read-only operator console (web page) here; HOST default 127.0.0.1 "
+                        "(docs/live.md, Operator console)")
+    r.add_argument("--ins-udp", metavar="[HOST:]PORT",
+                   help="the ship's INS as NMEA 0183 over UDP ($--ZDA, $PASHR, $--HDT, $PSXN,23; HOST default "
+                        "0.0.0.0): corrected by the stars as they come and sent on --udp at the INS's rate "
+                        "(method stars+ins; docs/live.md)")
+    r.add_argument("--ins-convention", default="", metavar="SIGNS",
+                   help="the INS's signs, e.g. roll=starboard-up,pitch=bow-down (default shipstar's; "
+                        "docs/conventions.md)")
     r.add_argument("--quiet", action="store_true", help="no status line on stderr")
     r.add_argument("--json", action="store_true", help="print the summary as one JSON object at the stop")
     r.add_argument("--max-waiting", type=int_in_range(1, 100), default=2, help=argparse.SUPPRESS)
+    from shipstar.cli._model_inputs import add_eop_argument
+
+    add_eop_argument(p)
     p.set_defaults(run=run)
     return p
 
@@ -198,8 +215,11 @@ def _settings(args, report):
     names = [c.name for c in configs]
     if args.reference is not None and args.reference not in names:
         raise ShipstarError(f"reference sensor {args.reference!r} is not one of {', '.join(names)}")
-    if not (args.out or args.udp):
-        raise ShipstarError("give an output: --out CSV and/or --udp HOST:PORT")
+    if not (args.out or args.udp or args.http):
+        raise ShipstarError("give an output: --out CSV, --udp HOST:PORT and/or --http [HOST:]PORT")
+    from shipstar.live._http import parse_http_address
+
+    http = parse_http_address(args.http) if args.http else None
     udp = tuple(parse_host_port(u) for u in args.udp)
     out = None
     if args.out:
@@ -218,8 +238,31 @@ def _settings(args, report):
                               streak_correction=not args.no_streak_correction)
     return LiveSettings(tuple(configs), tuple(dirs), options, names.index(args.reference) if args.reference else 0,
                         args.date_obs_is, track, weather, tails, nav, out, udp, args.format, args.method,
-                        args.stop_after_s, stale_s=args.stale_s, max_waiting=args.max_waiting,
-                        status_stream=None if args.quiet else sys.stderr)
+                        args.stop_after_s, stale_s=args.stale_s, max_waiting=args.max_waiting, http=http,
+                        ins=_ins_receiver(args, report),
+                        status_stream=None if args.quiet else sys.stderr,
+                        header_checks=tuple(
+                            header_check(args, names=(c.name, c.camera.name), camera=c.camera, track=track,
+                                         weather=weather, sensor=c.name,
+                                         given_name=f"--sensor {c.name}={d} (camera {c.camera.name})",
+                                         position_flags=not (args.track or args.nav_udp),
+                                         weather_flags=args.pressure_hpa is not None and not args.weather)
+                            for c, d in zip(configs, dirs)))
+
+
+def _ins_receiver(args, report):
+    """``--ins-udp``: the INS receiver and forward filter (shipstar.live._ins_live), or None."""
+    if not getattr(args, "ins_udp", None):
+        return None
+    import time
+
+    from shipstar.live._ins_live import LiveIns
+    from shipstar.live._outputs import parse_host_port
+    from shipstar.sky.time import utc_jd_from_iso
+
+    host, port = parse_host_port(args.ins_udp, default_host="0.0.0.0")
+    now = time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime())
+    return LiveIns(host, port, args.ins_convention, origin_utc_jd=utc_jd_from_iso(now), on_error=report)
 
 
 def _f(x, digits: int = 2) -> str:
@@ -233,6 +276,10 @@ def _print_text(summary: dict) -> None:
     for m, b in summary["methods"].items():
         sig = "/".join(_f(v) for v in b["median_sigma_arcsec"])
         print(f"{m:15s} {b['n_solved']:6d}/{b['n']:<6d} median sigma heading/pitch/roll {sig}''")
+    i = summary.get("integrity")
+    if i is not None:
+        print(f"integrity: {i['n_inconsistent']} of {i['n_checked']} epochs inconsistent"
+              + "".join(f"; {k} does not fit in {v}" for k, v in i["suspects"].items()))
     lat = summary["latency"]
     print(f"latency (frame appears -> row out): median {_f(lat['median_ms'], 1)} ms, p99 {_f(lat['p99_ms'], 1)} ms "
           f"over {lat['n']} rows")
@@ -247,6 +294,8 @@ def run(args) -> int:
         print(f"shipstar live: {' '.join(str(text).split())}", file=sys.stderr, flush=True)
 
     settings = _settings(args, report)
+    if settings.ins is not None:
+        settings.ins.start()                # a port in use: one line, before anything starts
     if settings.nav is not None:
         settings.nav.start()                # a port in use: one line, before anything starts
     try:
@@ -255,6 +304,8 @@ def run(args) -> int:
     finally:
         if settings.nav is not None:
             settings.nav.stop()
+        if settings.ins is not None:
+            settings.ins.stop()
     if args.json:
         emit_json(outcome.summary)
     else:

@@ -17,6 +17,14 @@ from shipstar.cli._common import (
     float_in_range,
     int_in_range,
 )
+from shipstar.cli._header_checks import add_trust_flags_argument, override_record, print_overrides
+from shipstar.cli._model_inputs import (
+    add_measure_uncertainty,
+    add_model_input_arguments,
+    apply_eop,
+    humidity,
+    print_measure_uncertainty,
+)
 from shipstar.errors import ShipstarError
 
 __all__ = ["register", "run"]
@@ -65,9 +73,16 @@ The summary gives the Earth orientation quality (measured / predicted / extrapol
 UT1-UTC error), how the frame times were read (date_obs_is, time_sources) and the
 accuracy warnings, which are also printed one per line on stderr (e.g. a refraction
 model other than the one the installation was calibrated with).
-Exit codes: 0 every frame solved; 1 written, but some frames failed; 2 bad input
-(including a sensor none of whose frames solved); 130 / 143 stopped by SIGINT / SIGTERM
-(OUT.partial kept).
+Integrity: at every epoch the sensors' deck attitudes are checked against each other
+(chi-square of their disagreement against their combined uncertainty, false alarms 1 in
+a million epochs); an inconsistent epoch's fused rows say so (integrity, integrity_chi2,
+suspect_sensor: the sensor that does not fit).  Frames whose folders look swapped (each
+sensor's frames fit the other's installation much better) are refused at the start.
+Exit codes: 0 every frame solved, every epoch fused and consistent; 1 written, but some
+frames failed, epochs have no fused attitude (the first epochs before the deck's motion
+is known not counted) or are inconsistent, the counts on one line on stderr; also folders
+that look swapped (nothing written); 2 bad input (including a sensor none of whose
+frames solved); 130 / 143 stopped by SIGINT / SIGTERM (OUT.partial kept).
 """
 
 
@@ -113,10 +128,12 @@ def register(subparsers) -> argparse.ArgumentParser:
     w = p.add_argument_group("weather (fixed, or a table)")
     add_weather_arguments(w, WEATHER_HELPS)
     w.add_argument("--weather", metavar="CSV", help="time_utc, pressure_hpa, temperature_c[, relative_humidity]")
+    add_model_input_arguments(p, dock=False)     # --eop, input sigmas, humidity "not given" (docs/uncertainty.md)
     o = p.add_argument_group("processing")
     add_refraction_arguments(o, "refraction model (default erfa; almanac = the seeds')",
                              "per-star (default) or the seed's boresight-only refraction")
     add_date_obs_is_argument(o)
+    add_trust_flags_argument(o)
     o.add_argument("--reference", metavar="NAME", help="sensor whose frame times are the epochs (default first)")
     o.add_argument("--max-pair-offset-s", type=_non_negative, default=0.06,
                    help="largest time offset of paired frames (s, default 0.06)")
@@ -127,6 +144,9 @@ def register(subparsers) -> argparse.ArgumentParser:
     r = p.add_argument_group("output")
     r.add_argument("--out", required=True, metavar="CSV", help="attitude CSV to write")
     r.add_argument("--plots", metavar="DIR", help="write attitude.png and residuals.png here")
+    r.add_argument("--monitor", metavar="CSV",
+                   help="per epoch and non-reference sensor, the estimated rotation of its mount relative to the "
+                        "reference mount (deck axes, arcsec, with sigmas; docs/pipeline.md, Clocks and flexure)")
     r.add_argument("--truth", metavar="CSV", help="true attitude (simulated sessions): errors in the summary")
     r.add_argument("--progress", action="store_true", help="progress bar on stderr (default: only on a terminal)")
     r.add_argument("--json", action="store_true", help="print one JSON object (the summary)")
@@ -136,6 +156,9 @@ def register(subparsers) -> argparse.ArgumentParser:
                    help="worker processes (default: the cores; the output is the same for every N)")
     o.add_argument("--chunk-s", type=float_in_range(1e-3, 86400.0), default=60.0, metavar="S",
                    help="processing chunk (s, default 60): each sensor's chunk is one task, a checkpoint after each")
+    from shipstar.cli._ins_args import add_ins_arguments
+
+    add_ins_arguments(p)                          # --ins, --ins-out, ... (issue 15)
     p.set_defaults(run=run)
     return p
 
@@ -161,7 +184,7 @@ def _site_and_weather(args):
         return track, WeatherTable.read_csv(args.weather)
     if any(v is None for v in fixed):
         raise ShipstarError("give the weather: --pressure-hpa and --temperature-c, or --weather CSV")
-    return track, WeatherTable.constant(args.pressure_hpa, args.temperature_c, args.relative_humidity)
+    return track, WeatherTable.constant(args.pressure_hpa, args.temperature_c, humidity(args)[0])
 
 
 def _installations(args) -> dict:
@@ -215,18 +238,20 @@ def _first_frame_time(directory, date_obs_is: str) -> tuple:
     return read_fits_header(d / names[0], date_obs_is=date_obs_is).mid_utc_jd()
 
 
-def _sources(args, configs) -> list:
-    """Each sensor's indexed FITS frames (headers only), their SENSOR names checked."""
+def _sources(args, configs, track=None, weather=None) -> list:
+    """Each sensor's indexed FITS frames (headers only), each header cross-checked
+    (SENSOR/INSTRUME, image size, SITELAT/SITELONG, PRESSURE/TEMPERAT; ``args.header_checks``)."""
+    from shipstar.cli._header_checks import header_check
     from shipstar.pipeline._sources import FitsDirectorySource
 
-    sources = []
+    sources, args.header_checks = [], []
     for config, (name, directory) in zip(configs, args.sensor):
-        source = FitsDirectorySource(name, directory, date_obs_is=args.date_obs_is)
-        other = sorted(source.sensors_named - {name, config.camera.name})
-        if other:
-            raise ShipstarError(f"frames in {directory} are from sensor {other[0]!r} (FITS SENSOR/INSTRUME), "
-                                f"not {name!r}")
-        sources.append(source)
+        check = header_check(args, names=(name, config.camera.name), camera=config.camera, track=track,
+                             weather=weather, given_name=f"--sensor {name}={directory} (camera {config.camera.name})",
+                             position_flags=not getattr(args, "track", None),
+                             weather_flags=not getattr(args, "weather", None), sensor=name)
+        args.header_checks.append(check)
+        sources.append(FitsDirectorySource(name, directory, date_obs_is=args.date_obs_is, check=check))
     return sources
 
 
@@ -261,6 +286,24 @@ def _f2(x) -> str:
     return "-" if x is None else f"{x:.2f}"
 
 
+def _print_mounts(summary: dict) -> None:
+    """Clock offsets and flexure (pipeline._mounts), one line per non-reference sensor."""
+    for name, c in summary.get("time_offsets_s", {}).items():
+        f = summary["flexure"].get(name, {})
+        if c["offset_s"] is None:
+            print(f"sensor {name}: clock offset and flexure not estimated yet ({f.get('n_epochs', 0)} epochs)")
+            continue
+        st, ss = f["static_arcsec"], f["static_sigma_arcsec"]
+        wa = f["wave_amplitude_arcsec"]
+        axes = ("bow", "up", "starboard")
+        print(f"sensor {name}: clock offset {c['offset_s'] * 1e3:+.3f} +- {c['sigma_s'] * 1e3:.3f} ms "
+              f"({'applied' if c['applied'] else 'not applied'}); mount vs {summary['reference_sensor']}'s, static "
+              + "/".join(_f2(st[a]) for a in axes) + " +- " + "/".join(_f2(ss[a]) for a in axes)
+              + "'' (bow/up/starboard" + (", installation drift" if f["installation_drift"] else "")
+              + "), wave amplitude " + "/".join(_f2(wa[a]) for a in axes)
+              + f"'' ({'applied' if f['applied'] else 'not applied'})")
+
+
 def _print_text(summary: dict, out: str) -> None:
     for name, s in summary["sensors"].items():
         print(f"sensor {name}: {s['n_solved']} of {s['n_frames']} frames solved, median {_f2(s['median_stars_used'])} "
@@ -272,6 +315,15 @@ def _print_text(summary: dict, out: str) -> None:
         sig = "/".join(_f2(v) for v in b["median_sigma_arcsec"])
         rms = "/".join(_f2(v) for v in b.get("rms_arcsec", [None] * 3))
         print(f"{m:15s} {b['n_solved']:4d}/{b['n']:<4d} {sig:>28s}    {rms:>20s}")
+    i = summary.get("integrity")
+    if i is not None:
+        print(f"integrity: {i['n_inconsistent']} of {i['n_checked']} epochs inconsistent"
+              + "".join(f"; {k} does not fit in {v}" for k, v in i["suspects"].items())
+              + ("" if i["max_chi2"] is None else f" (largest chi2 {i['max_chi2']:.1f}, limit {i['chi2_limit']:.1f})"))
+        for f in i["inconsistent"]:
+            print(f"  inconsistent: {f['frame']} ({f['time_utc']}): {f['disagreement_arcsec']:.1f}'', "
+                  f"chi2 {f['chi2']:.1f}, {f['suspect']} does not fit")
+    _print_mounts(summary)
     e = summary["eop"]
     print(f"Earth orientation: {e['quality']} (UT1-UTC error {e['dut1_error_s']:.2g} s, polar motion "
           f"{e['polar_motion_error_arcsec']:.2g}'')")
@@ -288,6 +340,8 @@ def _print_text(summary: dict, out: str) -> None:
 def _check_outputs(args) -> None:
     """Every output path, before any processing."""
     check_output_file(args.out, "--out")
+    if args.monitor:
+        check_output_file(args.monitor, "--monitor")
     if args.plots:
         check_output_dir(args.plots, "--plots", files=("attitude.png", "residuals.png"))
 
@@ -305,11 +359,25 @@ def _eop(sources) -> dict:
 def _csv_comments(eop: dict, warnings: list) -> list:
     """The attitude CSV's comment lines known at the start: Earth orientation quality and
     the warnings so far (later ones are written where they arise)."""
+    from shipstar.sky.eop import eop_source
+
     lines = ["shipstar measure: ship attitude (docs/file-formats.md)",
              f"eop_quality = {eop['quality']}, dut1_error_s = {eop['dut1_error_s']:.3g}, "
-             f"polar_motion_error_arcsec = {eop['polar_motion_error_arcsec']:.3g}"]
+             f"polar_motion_error_arcsec = {eop['polar_motion_error_arcsec']:.3g}",
+             f"eop_source = {eop_source()}"]
     return lines + ([f"warning: {w}" for w in warnings] or
                     ["warnings at the start: none (a warning that arises later is written where it arises)"])
+
+
+def _override_comments(record: dict) -> list:
+    """The attitude CSV's comment lines of a run with --trust-flags (none without)."""
+    from shipstar.pipeline._header_check import override_lines
+
+    if not record:
+        return []
+    lines = override_lines(record["header_overrides"])
+    return ["trust_flags = true: the flags were used where the frames' FITS headers contradict them"
+            + ("" if lines else " (no contradiction found)")] + [f"header override: {line}" for line in lines]
 
 
 def _check_partial(args) -> None:
@@ -352,22 +420,33 @@ def _job(args, track, weather):
 
 
 def _check_covered(sources, track, weather) -> None:
+    """Before any work: every frame time lies between two rows of the track and of the
+    weather (no longer apart than each allows) or within 1 s of their first or last row;
+    the first frame that does not is named (shipstar.pipeline._tables, docs/conventions.md)."""
     for source in sources:
         jd1, jd2 = source.times_utc_jd()
-        for k in (0, -1):
-            track.check_covers(jd1[k], jd2[k])
-            weather.check_covers(jd1[k], jd2[k])
+        for table in (track, weather):
+            if hasattr(table, "check_covers_all"):
+                table.check_covers_all(jd1, jd2)
+            else:
+                for k in (0, -1):
+                    table.check_covers(jd1[k], jd2[k])
 
 
 def run(args) -> int:
     from shipstar._signals import EXIT_CODES, StopOnSignals
     from shipstar.pipeline import TruthTable
+    from shipstar.pipeline._integrity import swap_check
     from shipstar.pipeline._measure import WorkerPool, default_workers, run_measure
     from shipstar.pipeline._plots import plot_attitude_csv
     from shipstar.pipeline._progress import ProgressBar
 
     _check_outputs(args)
     _check_partial(args)
+    from shipstar.cli._ins_args import finish_ins, ins_observer
+
+    ins_rows = ins_observer(args)                 # --ins: the joint attitudes collected as they come
+    apply_eop(args)
     track, weather = _site_and_weather(args)
     truth = TruthTable.read_csv(args.truth) if args.truth else None
     job = _job(args, track, weather)
@@ -375,14 +454,22 @@ def run(args) -> int:
     pool = WorkerPool(job, n_workers) if n_workers > 1 else None     # warms up while the frames are indexed
     bar = ProgressBar(True if args.progress else None)
     try:
-        sources = _sources(args, job.configs)
+        sources = _sources(args, job.configs, track, weather)
         _check_covered(sources, track, weather)
+        swapped = swap_check(job.configs, sources, track, weather, job.options)
+        if swapped:
+            print(f"shipstar measure: error: {swapped}", file=sys.stderr)
+            return 1
         eop = _eop(sources)
         start_warnings = accuracy_warnings(args)
+        overrides = override_record(args.header_checks)
+        print_overrides("measure", overrides)
         with StopOnSignals() as stop:
-            outcome = run_measure(job, sources, args.out, truth=truth, comments=_csv_comments(eop, start_warnings),
+            outcome = run_measure(job, sources, args.out, truth=truth,
+                                  comments=_csv_comments(eop, start_warnings) + _override_comments(overrides),
                                   workers=pool or 1, resume=args.resume, chunk_s=args.chunk_s,
-                                  progress=lambda done, total: bar("frames", done, total), stop=stop)
+                                  progress=lambda done, total: bar("frames", done, total), stop=stop,
+                                  monitor=args.monitor, observer=ins_rows)
     finally:
         bar.close()
         if pool is not None:
@@ -394,9 +481,13 @@ def run(args) -> int:
     summary["out"] = str(outcome.path)
     summary["complete"] = outcome.complete
     summary["eop"] = eop
+    add_measure_uncertainty(summary, args, job)
     summary["date_obs_is"] = args.date_obs_is
     summary["time_sources"] = {s.name: s.time_sources() for s in sources}
     summary["warnings"] = list(dict.fromkeys(start_warnings + list(outcome.warnings)))
+    summary.update(overrides)
+    if not outcome.stopped:
+        finish_ins(args, job, ins_rows, summary)
     if outcome.resumed_at_s is not None:
         summary["resumed_at_s"] = outcome.resumed_at_s
     if outcome.stopped:
@@ -407,15 +498,15 @@ def run(args) -> int:
         emit_json(summary)
     else:
         _print_text(summary, str(outcome.path))
+        print_measure_uncertainty(summary)
     if outcome.stopped:
         print(f"shipstar measure: stopped by {outcome.stopped} after {outcome.n_epochs_written} epochs; "
               f"{outcome.path} holds every finished row; the same command with --resume continues it",
               file=sys.stderr)
         return EXIT_CODES.get(outcome.stopped, 1)
-    n_failed = outcome.stats.n_failed
-    if n_failed:
-        sensor, label, reason = outcome.stats.first_failure()
-        print(f"shipstar measure: {n_failed} frames failed (first: {sensor} {label}: {reason})", file=sys.stderr)
+    problems = outcome.stats.problems_line()
+    if problems:
+        print(f"shipstar measure: {problems}", file=sys.stderr)
         return 1
     return 0
 

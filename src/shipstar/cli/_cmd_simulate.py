@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from shipstar.cli._common import emit_json, finite_float, int_in_range, latitude_deg, rng_seed
+from shipstar.cli._common import (angle_deg, emit_json, finite_float, in_range, int_in_range, latitude_deg,
+                                  longitude_deg, rng_seed)
 from shipstar.errors import ShipstarError
 
 __all__ = ["register"]
@@ -44,25 +45,25 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--camera", default="A1", metavar="NAME|FILE",
                    help="camera preset (A1, A2, seed002, seed004) or camera TOML file (default A1)")
     a = p.add_argument_group("sensor attitude in ICRS")
-    a.add_argument("--ra-deg", type=finite_float, metavar="DEG", help="boresight right ascension")
-    a.add_argument("--dec-deg", type=finite_float, metavar="DEG", help="boresight declination")
-    a.add_argument("--roll-deg", type=finite_float, metavar="DEG", help="position angle of image up (default 0: north up)")
+    a.add_argument("--ra-deg", type=angle_deg, metavar="DEG", help="boresight right ascension")
+    a.add_argument("--dec-deg", type=angle_deg, metavar="DEG", help="boresight declination")
+    a.add_argument("--roll-deg", type=angle_deg, metavar="DEG", help="position angle of image up (default 0: north up)")
     s = p.add_argument_group("ship attitude and installation (needs --time and a site)")
-    s.add_argument("--heading-deg", type=finite_float, metavar="DEG", help="ship heading, from north through east")
-    s.add_argument("--pitch-deg", type=finite_float, metavar="DEG", help="ship pitch, bow up positive (default 0)")
-    s.add_argument("--ship-roll-deg", type=finite_float, metavar="DEG", help="ship roll, starboard down positive (default 0)")
-    s.add_argument("--install-az-deg", type=finite_float, metavar="DEG", help="installation azimuth from the bow to starboard")
-    s.add_argument("--install-el-deg", type=finite_float, metavar="DEG", help="installation elevation above the deck")
-    s.add_argument("--install-roll-deg", type=finite_float, metavar="DEG", help="sensor roll about its boresight (default 0)")
+    s.add_argument("--heading-deg", type=in_range("heading_deg"), metavar="DEG", help="ship heading, from north through east")
+    s.add_argument("--pitch-deg", type=in_range("pitch_deg"), metavar="DEG", help="ship pitch, bow up positive (default 0)")
+    s.add_argument("--ship-roll-deg", type=in_range("roll_deg", label="ship_roll_deg"), metavar="DEG", help="ship roll, starboard down positive (default 0)")
+    s.add_argument("--install-az-deg", type=in_range("install_az_deg"), metavar="DEG", help="installation azimuth from the bow to starboard")
+    s.add_argument("--install-el-deg", type=in_range("install_el_deg"), metavar="DEG", help="installation elevation above the deck")
+    s.add_argument("--install-roll-deg", type=in_range("install_roll_deg"), metavar="DEG", help="sensor roll about its boresight (default 0)")
     s.add_argument("--deck-rate-deg-per-s", type=finite_float, nargs=3, metavar=("WX", "WY", "WZ"),
                    help="ship angular rate about the deck axes (bow, up, starboard): motion smear")
     t = p.add_argument_group("time, site and weather")
     t.add_argument("--time", metavar="ISO", help="mid-exposure UTC, e.g. 2013-03-15T12:16:00")
     t.add_argument("--lat-deg", type=latitude_deg, metavar="DEG", help="geodetic latitude")
-    t.add_argument("--lon-deg", type=finite_float, metavar="DEG", help="longitude, east positive")
+    t.add_argument("--lon-deg", type=longitude_deg, metavar="DEG", help="longitude, east positive")
     t.add_argument("--height-m", type=finite_float, metavar="M", help="height above the WGS84 ellipsoid (default 0)")
-    t.add_argument("--pressure-hpa", type=finite_float, metavar="HPA", help="air pressure at the sensor (default 1013.25)")
-    t.add_argument("--temperature-c", type=finite_float, metavar="C", help="air temperature (default 10)")
+    t.add_argument("--pressure-hpa", type=in_range("pressure_hpa"), metavar="HPA", help="air pressure at the sensor (default 1013.25)")
+    t.add_argument("--temperature-c", type=in_range("temperature_c"), metavar="C", help="air temperature (default 10)")
     t.add_argument("--relative-humidity", type=finite_float, metavar="FRACTION", help="0..1, erfa model only (default 0)")
     t.add_argument("--refraction", choices=("erfa", "almanac", "none"), help="refraction model (default erfa; almanac = the seeds' model)")
     o = p.add_argument_group("scene and output")
@@ -77,6 +78,9 @@ def register(subparsers) -> argparse.ArgumentParser:
                    help="fraction of hot pixels (default 2e-5)")
     o.add_argument("--out", required=True, metavar="FRAME.fits", help="FITS file to write")
     o.add_argument("--json", action="store_true", help="print one JSON object describing the result")
+    from shipstar.cli._model_inputs import add_eop_argument
+
+    add_eop_argument(p)
     p.set_defaults(run=run)
     return p
 

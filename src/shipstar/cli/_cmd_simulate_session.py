@@ -13,6 +13,7 @@ EPILOG = """\
 examples:
   shipstar simulate-session --kind dock --out dock --duration-s 2
   shipstar simulate-session --kind sea --out sea --duration-s 16 --offset-ms 30 --json
+  shipstar simulate-session --kind sea --out real --duration-s 16 --conditions realistic
 
 dock: seed 000's calibration night (Jiangyin 31.9 N 120.3 E, 2013-03-15 12:16 UTC, heading
 46 deg 28' 28.51'', level, 11.10 C, 1021.70 hPa; A1 and A2 at seed 000 Tables 2-3).
@@ -43,10 +44,26 @@ def register(subparsers) -> argparse.ArgumentParser:
                    help="A2's exposures this much later than A1's (ms, within +-1000, default 0)")
     p.add_argument("--mag-limit", type=finite_float, default=8.0, help="faintest Hp magnitude (default 8)")
     p.add_argument("--seed", type=rng_seed, default=0, help="noise seed (default 0)")
+    p.add_argument("--conditions", metavar="FILE.toml",
+                   help="simulate a real night (cloud, Moon, twilight, seeing, hot pixels, cosmic rays, trails, "
+                        "hidden clock offsets, hull flexure, lens distortion): a conditions file or a shipped "
+                        "example's name (realistic, cloud, moon, twilight, seeing, hot_pixels, trails, clock, "
+                        "flexure, distortion); docs/simulation.md")
+    p.add_argument("--ins-log", action="store_true",
+                   help="also write the ship's inertial navigator's log: OUT/ins.csv, OUT/ins.nmea (50 Hz) and its "
+                        "true errors OUT/ins_truth.json (docs/simulation.md)")
+    p.add_argument("--ins-errors", default="", metavar="NAME=VALUE,...",
+                   help="the INS's errors, e.g. heading_bias_arcsec=30,heading_drift_arcsec_per_h=36,"
+                        "time_offset_s=0.02,misalignment_arcsec=10/-5/3 (defaults: issue 15's)")
+    p.add_argument("--ins-convention", default="", metavar="SIGNS",
+                   help="signs of the INS files, e.g. roll=starboard-up,pitch=bow-down (default shipstar's)")
     p.add_argument("--max-output-gb", type=positive_float, default=20.0,
                    help="refuse a session estimated to write more than this (GB, default 20)")
     p.add_argument("--progress", action="store_true", help="progress bar on stderr (default: only on a terminal)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    from shipstar.cli._model_inputs import add_eop_argument
+
+    add_eop_argument(p)
     p.set_defaults(run=run)
     return p
 
@@ -90,6 +107,16 @@ def run(args) -> int:
     from shipstar.simulate._session import write_session
 
     spec = _spec(args)
+    if getattr(args, "conditions", None):
+        from shipstar.simulate._conditions import apply_conditions, load_conditions
+
+        spec = apply_conditions(spec, load_conditions(args.conditions))
+    if getattr(args, "ins_log", False):
+        from shipstar.frames import AttitudeConvention
+        from shipstar.simulate._ins import parse_ins_errors
+
+        ins_errors = parse_ins_errors(args.ins_errors)           # refused before anything is written
+        AttitudeConvention(args.ins_convention)
     _check_out(args.out)
     bar = ProgressBar(True if args.progress else None)
     try:
@@ -97,9 +124,15 @@ def run(args) -> int:
                               max_output_bytes=int(args.max_output_gb * 1e9))
     finally:
         bar.close()
+    if getattr(args, "ins_log", False):
+        from shipstar.simulate._ins import simulate_ins, write_ins_files
+
+        files.update(write_ins_files(spec, simulate_ins(spec, ins_errors), args.out, convention=args.ins_convention))
     report = {"kind": spec.kind, "out": str(args.out), "session": str(files["session"]),
               "exposure_s": {s.name: spec.exposure_of(s) for s in spec.sensors},
               "truth": str(files["truth"]), "track": str(files["track"]), "weather": str(files["weather"]),
+              **({"conditions": str(files["conditions"])} if "conditions" in files else {}),
+              **{k: str(files[k]) for k in ("ins_csv", "ins_nmea", "ins_truth") if k in files},
               "frames": {name: len(paths) for name, paths in files["frames"].items()},
               "frames_dirs": {name: str(paths[0].parent) for name, paths in files["frames"].items() if paths}}
     if args.json:

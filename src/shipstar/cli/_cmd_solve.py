@@ -32,7 +32,7 @@ exit status: 0 solved, 1 not solved (the reason is printed), 2 bad input.
 """
 
 
-_fov = float_in_range(0.5, 60.0, "0.5 .. 60 deg")
+_fov = float_in_range(0.5, 60.0, "0.5 .. 60 deg", angle=True)
 _tolerance = float_in_range(0.0, 0.5, "0 .. 0.5")
 _count = int_in_range(5, 1000, "5 .. 1000")
 
@@ -60,6 +60,9 @@ def register(subparsers) -> argparse.ArgumentParser:
                    help="brightest extracted stars used (default 60)")
     p.add_argument("--date-obs-is", choices=("start", "mid"), default="start",
                    help="what a FITS image's DATE-OBS means (default start, the FITS standard)")
+    p.add_argument("--trust-flags", action="store_true",
+                   help="use --camera even where the FITS header's SENSOR/INSTRUME names another sensor or camera "
+                        "(recorded in the output; docs/file-formats.md, Header cross-checks)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(run=run)
     return p
@@ -84,16 +87,48 @@ def _summary(res) -> str:
             f"p_false {ident.p_false:.1e}, {res.time_ms:.0f} ms" + _time_line(res))
 
 
+def _header_record(args) -> dict:
+    """The header cross-checks of a FITS image against --camera (SENSOR/INSTRUME, image
+    size): ShipstarError on a contradiction, the override record with --trust-flags."""
+    from pathlib import Path
+
+    from shipstar._fitsio import read_fits_header
+    from shipstar.camera import load_camera
+    from shipstar.cli._header_checks import header_check, override_record
+    from shipstar.errors import ShipstarError
+
+    if args.camera is None:
+        return {}
+    try:
+        with open(Path(args.image), "rb") as fh:
+            head = fh.read(9)
+    except OSError:
+        return {}                       # solve_image says why
+    if head != b"SIMPLE  =" and not head.startswith(b"\x1f\x8b"):
+        return {}                       # not FITS: no header to check
+    try:
+        info = read_fits_header(args.image, date_obs_is=args.date_obs_is)
+    except ShipstarError:
+        return {}                       # solve_image reads the pixels, or says why it cannot
+    camera = load_camera(args.camera)
+    check = header_check(args, names=(camera.name,), camera=camera, given_name=f"--camera {args.camera}")
+    check(info)
+    return override_record([check])
+
+
 def run(args) -> int:
+    from shipstar.cli._header_checks import print_overrides
     from shipstar.identify import solve_image
 
+    record = _header_record(args)
+    print_overrides("solve", record)
     res = solve_image(args.image, camera=args.camera, fov_deg=args.fov_deg,
                       fov_tolerance=args.fov_tolerance, mag_limit=args.mag_limit,
                       centroid_error_px=args.centroid_error_px,
                       threshold_sigma=args.threshold_sigma, max_stars=args.max_stars,
                       date_obs_is=args.date_obs_is)
     if args.json:
-        emit_json(res.as_json_dict())
+        emit_json({**res.as_json_dict(), **record})
     else:
-        print(_summary(res))
+        print(_summary(res) + ("\n--trust-flags: the camera was used as given" if record else ""))
     return 0 if res.solved else 1

@@ -13,7 +13,7 @@ from pathlib import Path
 from shipstar._atomic import atomic_write_text  # noqa: F401  (re-exported for commands)
 from shipstar.errors import ShipstarError
 
-__all__ = ["finite_float", "latitude_deg", "longitude_deg", "deflection_arcsec", "fraction", "positive_float",
+__all__ = ["finite_float", "angle_deg", "in_range", "latitude_deg", "longitude_deg", "deflection_arcsec", "fraction", "positive_float",
            "int_in_range", "float_in_range", "rng_seed", "add_site_arguments", "add_weather_arguments",
            "add_refraction_arguments", "add_date_obs_is_argument", "REFRACTION_MODELS", "emit_json", "atomic_write_text", "check_output_file", "check_output_dir", "accuracy_warnings",
            "one_line"]
@@ -30,23 +30,40 @@ def finite_float(text: str) -> float:
     return value
 
 
-def latitude_deg(text: str) -> float:
-    """argparse type: latitude in degrees within [-90, 90]."""
-    value = finite_float(text)
-    if not -90.0 <= value <= 90.0:
-        raise argparse.ArgumentTypeError(f"latitude must be within [-90, 90] deg, got {value}")
-    return value
+def angle_deg(text: str) -> float:
+    """argparse type: an angle in degrees, decimal (``46.474586``) or degrees-minutes-seconds
+    (``46d28m28.51s``, ``46:28:28.51``, ``-46d28m28.51s``): :func:`shipstar.limits.parse_angle_deg`."""
+    from shipstar.limits import parse_angle_deg
+
+    try:
+        return parse_angle_deg(text)
+    except ShipstarError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def longitude_deg(text: str) -> float:
-    """argparse type: longitude in degrees within [-180, 360] (east positive, or 0-360)."""
-    from shipstar.sky.apparent import LON_RANGE_DEG
+def in_range(name: str, *, angle: bool | None = None, label: str | None = None):
+    """argparse type factory: a value within the physical range ``shipstar.limits.RANGES[name]``
+    (one set for every entry point), refused in one line naming the value, the range and its
+    reason.  Ranges whose name ends in ``_deg`` (or ``angle=True``) also take degrees-minutes-seconds."""
+    is_angle = name.endswith("_deg") if angle is None else angle
 
-    value = finite_float(text)
-    lo, hi = LON_RANGE_DEG
-    if not lo <= value <= hi:
-        raise argparse.ArgumentTypeError(f"longitude must be within [{lo:g}, {hi:g}] deg, got {value}")
-    return value
+    def parse(text: str) -> float:
+        from shipstar.limits import check_range
+
+        value = angle_deg(text) if is_angle else finite_float(text)
+        try:
+            return check_range(name, value, label=label)
+        except ShipstarError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    parse.__name__ = name
+    return parse
+
+
+#: argparse type: geodetic latitude (deg, decimal or DMS) within [-90, 90].
+latitude_deg = in_range("lat_deg", label="latitude")
+#: argparse type: longitude (deg, decimal or DMS) within [-180, 360] (east positive, or 0-360).
+longitude_deg = in_range("lon_deg", label="longitude")
 
 
 def deflection_arcsec(text: str) -> float:
@@ -99,11 +116,12 @@ def int_in_range(lo: int, hi: int | None = None, shown: str | None = None):
     return parse
 
 
-def float_in_range(lo: float, hi: float | None = None, shown: str | None = None):
+def float_in_range(lo: float, hi: float | None = None, shown: str | None = None, *, angle: bool = False):
     """argparse type factory: a finite float within ``[lo, hi]`` (``hi`` None: no upper
-    bound); ``shown`` as in :func:`int_in_range`."""
+    bound); ``shown`` as in :func:`int_in_range`; ``angle``: degrees, decimal or DMS
+    (:func:`angle_deg`)."""
     def parse(text: str) -> float:
-        value = finite_float(text)
+        value = angle_deg(text) if angle else finite_float(text)
         if value < lo or (hi is not None and value > hi):
             raise argparse.ArgumentTypeError(f"{_range_text(lo, hi, shown)}, got {value}")
         return value
@@ -139,9 +157,10 @@ def add_site_arguments(parser, helps: dict, *, required: bool = False, deflectio
 def add_weather_arguments(parser, helps: dict, *, required: bool = False, humidity_default=0.0) -> None:
     """Add ``--pressure-hpa``, ``--temperature-c`` and ``--relative-humidity`` (0..1);
     ``helps`` maps each dest to its help."""
-    parser.add_argument("--pressure-hpa", required=required, type=finite_float, help=helps["pressure_hpa"])
-    parser.add_argument("--temperature-c", required=required, type=finite_float, help=helps["temperature_c"])
-    parser.add_argument("--relative-humidity", type=fraction, default=humidity_default,
+    parser.add_argument("--pressure-hpa", required=required, type=in_range("pressure_hpa"), help=helps["pressure_hpa"])
+    parser.add_argument("--temperature-c", required=required, type=in_range("temperature_c"),
+                        help=helps["temperature_c"])
+    parser.add_argument("--relative-humidity", type=in_range("relative_humidity"), default=humidity_default,
                         help=helps["relative_humidity"])
 
 

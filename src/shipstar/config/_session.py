@@ -159,9 +159,9 @@ def _weather(t: _Table | None, base: Path) -> WeatherConfig:
     if t is None:
         return WeatherConfig()
     csv = t.text("csv", "")
-    w = WeatherConfig(pressure_hpa=t.number("pressure_hpa", 1013.25, lo=0.0, hi=1200.0, lo_open=True),
-                      temperature_c=t.number("temperature_c", 10.0, lo=-90.0, hi=60.0),
-                      relative_humidity=t.number("relative_humidity", 0.0, lo=0.0, hi=1.0),
+    w = WeatherConfig(pressure_hpa=t.number("pressure_hpa", 1013.25, limit="pressure_hpa"),
+                      temperature_c=t.number("temperature_c", 10.0, limit="temperature_c"),
+                      relative_humidity=t.number("relative_humidity", 0.0, limit="relative_humidity"),
                       pressure_rate_hpa_per_s=t.number("pressure_rate_hpa_per_s", 0.0, lo=-1.0, hi=1.0),
                       temperature_rate_c_per_s=t.number("temperature_rate_c_per_s", 0.0, lo=-1.0, hi=1.0),
                       csv=_relative(base, csv) if csv else None)
@@ -186,8 +186,8 @@ def _dock_attitude(t: _Table | None, kind: str, path: Path):
         return None
     if kind != "dock":
         raise ShipstarError(f"{path}: [dock] belongs in dock sessions only")
-    att = (t.number("heading_deg", lo=0.0, hi=360.0), t.number("pitch_deg", 0.0, lo=-30.0, hi=30.0),
-           t.number("roll_deg", 0.0, lo=-45.0, hi=45.0))
+    att = (t.number("heading_deg", limit="heading_deg"), t.number("pitch_deg", 0.0, limit="pitch_deg"),
+           t.number("roll_deg", 0.0, limit="roll_deg"))
     t.finish()
     return att
 

@@ -82,8 +82,9 @@ def _sensor_entry(s: _Table, base: Path) -> SensorEntry:
     ref = s.text("camera")
     inst_ref = s.text("installation_file", "")
     entry = SensorEntry(name=name, camera=_camera(ref, base, s.where), camera_ref=ref,
-                        az_deg=s.number("az_deg", lo=-360.0, hi=360.0), el_deg=s.number("el_deg", lo=-90.0, hi=90.0),
-                        roll_deg=s.number("roll_deg", 0.0, lo=-180.0, hi=180.0),
+                        az_deg=s.number("az_deg", limit="install_az_deg"),
+                        el_deg=s.number("el_deg", limit="install_el_deg"),
+                        roll_deg=s.number("roll_deg", 0.0, limit="install_roll_deg"),
                         time_offset_s=s.number("time_offset_s", 0.0, lo=-1.0, hi=1.0),
                         installation_file=_relative(base, inst_ref) if inst_ref else None)
     s.finish()

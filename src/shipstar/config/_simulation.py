@@ -73,13 +73,13 @@ def _motion(t: _Table | None) -> MotionConfig | None:
                                                                                      lo=-10.0, hi=10.0),
         yaw_amplitude_deg=t.number("yaw_amplitude_deg", 0.0, lo=0.0, hi=45.0), yaw_period_s=t.number("yaw_period_s",
                                                                                                       12.0, **per),
-        pitch_deg=t.number("pitch_deg", 0.0, lo=-30.0, hi=30.0),
+        pitch_deg=t.number("pitch_deg", 0.0, limit="pitch_deg"),
         pitch_amplitude_deg=t.number("pitch_amplitude_deg", 0.0, lo=0.0, hi=30.0),
         pitch_period_s=t.number("pitch_period_s", 6.0, **per), pitch_phase_deg=t.number("pitch_phase_deg", 0.0, **ang),
-        roll_deg=t.number("roll_deg", 0.0, lo=-45.0, hi=45.0),
+        roll_deg=t.number("roll_deg", 0.0, limit="roll_deg"),
         roll_amplitude_deg=t.number("roll_amplitude_deg", 0.0, lo=0.0, hi=45.0),
         roll_period_s=t.number("roll_period_s", 8.0, **per), roll_phase_deg=t.number("roll_phase_deg", 0.0, **ang),
-        speed_m_per_s=t.number("speed_m_per_s", 0.0, lo=0.0, hi=50.0))
+        speed_m_per_s=t.number("speed_m_per_s", 0.0, limit="speed_m_per_s"))
     t.finish()
     return m
 

@@ -30,8 +30,8 @@ def load_site(path) -> SiteConfig:
     """Read a ``site.toml`` (format ``shipstar-site``)."""
     path, t = _read_toml(path, "site")
     s = t.table("site", required=True)
-    cfg = SiteConfig(name=s.text("name", ""), lat_deg=s.number("lat_deg", lo=-90.0, hi=90.0),
-                     lon_deg=s.number("lon_deg", lo=-180.0, hi=360.0), height_m=s.number("height_m", 0.0),
+    cfg = SiteConfig(name=s.text("name", ""), lat_deg=s.number("lat_deg", limit="lat_deg"),
+                     lon_deg=s.number("lon_deg", limit="lon_deg"), height_m=s.number("height_m", 0.0),
                      xi_arcsec=s.number("xi_arcsec", 0.0), eta_arcsec=s.number("eta_arcsec", 0.0))
     s.finish()
     t.finish()

@@ -33,12 +33,28 @@ class _Table:
             return default, False
         return self.data[key], True
 
-    def number(self, key: str, default=_REQUIRED, *, lo=-math.inf, hi=math.inf, lo_open=False) -> float:
+    def number(self, key: str, default=_REQUIRED, *, lo=-math.inf, hi=math.inf, lo_open=False,
+               limit: str | None = None) -> float:
+        """A finite number; a ``*_deg`` key may be a string in degrees-minutes-seconds
+        (``"46d28m28.51s"``, ``"46:28:28.51"``).  ``limit`` names its physical range in
+        :data:`shipstar.limits.RANGES` (the one set of every entry point) instead of ``lo``/``hi``."""
         value, given = self._get(key, default)
         if not given:
             return value
+        if isinstance(value, str) and key.endswith("_deg"):
+            from shipstar.limits import parse_angle_deg
+
+            try:
+                value = parse_angle_deg(value)
+            except ShipstarError:
+                raise ShipstarError(f"{self.where}: {key} must be a finite number or degrees-minutes-seconds "
+                                    f"(\"46d28m28.51s\", \"46:28:28.51\"), got {value!r}") from None
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             raise ShipstarError(f"{self.where}: {key} must be a finite number, got {value!r}")
+        if limit is not None:
+            from shipstar.limits import check_range
+
+            return check_range(limit, value, label=key, where=self.where)
         if value < lo or value > hi or (lo_open and value == lo):
             op = ">" if lo_open else ">="
             rng = f"{op} {lo:g}" if hi == math.inf else f"within [{lo:g}, {hi:g}]"

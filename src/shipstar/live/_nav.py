@@ -285,9 +285,13 @@ class LiveWeather(_LiveTable):
         ShipstarError
             A value :class:`~shipstar.sky.refraction.Weather` refuses (refused, counted).
         """
+        from shipstar.limits import check_range
         from shipstar.sky.refraction import Weather
 
         try:
+            for key, value in (("pressure_hpa", pressure_hpa), ("temperature_c", temperature_c),
+                               ("relative_humidity", relative_humidity)):
+                check_range(key, value)                  # shipstar.limits: the ranges of every entry point
             w = Weather(pressure_hpa, temperature_c, relative_humidity)
         except ShipstarError as exc:
             raise self._refused(ShipstarError(f"{self.name}: {exc}")) from None

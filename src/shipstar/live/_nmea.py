@@ -129,6 +129,7 @@ from dataclasses import dataclass
 from functools import reduce
 
 from shipstar.errors import ShipstarError
+from shipstar.limits import bounds
 
 __all__ = [
     "NmeaError", "NmeaSentence", "SensorHealth", "GgaFix", "RmcFix", "ZdaTime", "WeatherReading",
@@ -144,8 +145,8 @@ __all__ = [
 #: NMEA 0183's longest sentence, ``$`` to CR LF included.
 MAX_SENTENCE_CHARS = 82
 #: Pressures and temperatures the decoders accept.
-PRESSURE_RANGE_HPA = (500.0, 1200.0)
-TEMPERATURE_RANGE_C = (-80.0, 60.0)
+PRESSURE_RANGE_HPA = bounds("pressure_hpa")          # shipstar.limits: one set of ranges for every entry point
+TEMPERATURE_RANGE_C = bounds("temperature_c")
 
 #: $PASHR field Q: no solution, one sensor, two or more sensors.
 PASHR_Q_NONE, PASHR_Q_SINGLE, PASHR_Q_FUSED = 0, 1, 2
@@ -154,7 +155,7 @@ PASHR_S_NONE, PASHR_S_DEGRADED, PASHR_S_NOMINAL = 0, 1, 2
 
 _HPA_PER_INHG = 33.8638866667
 _EOP_CODES = {"measured": "M", "predicted": "P", "extrapolated": "X"}
-_NAME_RE = re.compile(r"^[A-Za-z0-9_.\-]{1,16}$")
+_NAME_RE = re.compile(r"^[A-Za-z0-9_.+\-]{1,16}$")       # '+': method stars+ins (INS, issue 15)
 _TALKER_RE = re.compile(r"^[A-Z][A-Z0-9]$")
 _ADDRESS_RE = re.compile(r"^(?:P(?P<ptype>[A-Z0-9]{3,})|(?P<talker>[A-Z][A-Z0-9])(?P<type>[A-Z]{3}))$")
 _TIME_RE = re.compile(r"^(\d{2})(\d{2})(\d{2}(?:\.\d+)?)$")
@@ -503,7 +504,7 @@ def _count(value, what: str) -> int:
 
 def _name(value, what: str) -> str:
     if not isinstance(value, str) or not _NAME_RE.match(value):
-        raise NmeaError(f"{what} must be 1-16 characters of A-Z a-z 0-9 _ . -, got {value!r}", "output")
+        raise NmeaError(f"{what} must be 1-16 characters of A-Z a-z 0-9 _ . + -, got {value!r}", "output")
     return value
 
 

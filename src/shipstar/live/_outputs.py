@@ -24,7 +24,7 @@ __all__ = ["FORMATS", "METHODS", "UdpOutput", "row_objects", "epoch_sentences", 
 FORMATS = ("jsonl", "nmea")
 METHODS = ("joint", "seed-rule", "single")
 _INT_COLUMNS = ("solved", "n_stars")
-_TEXT_COLUMNS = ("time_utc", "method", "sensor", "frame", "reason", "time_source")
+_TEXT_COLUMNS = ("time_utc", "method", "sensor", "frame", "reason", "time_source", "integrity", "suspect_sensor")
 
 
 def parse_host_port(text: str, *, default_host: str | None = None) -> tuple[str, int]:

@@ -69,6 +69,10 @@ class LiveSettings:
     incomplete_timeout_s : float
         A frame file still incomplete this long after its last event is reported.
     status_period_s : float
+    header_checks : tuple of HeaderCheck
+        Each sensor's header cross-checks (``configs`` order; empty: only the SENSOR name
+        is checked): a frame that contradicts the flags is an unsolved row with the
+        reason; with ``--trust-flags`` it is processed and the override recorded.
     json_status : bool
         Status lines on stderr as text (False: none).
     """
@@ -94,6 +98,9 @@ class LiveSettings:
     status_stream: object = None
     tail_period_s: float = 0.2
     eop: dict | None = None
+    header_checks: tuple = ()
+    http: tuple | None = None       # (host, port) of the operator console (shipstar.live._http), or None
+    ins: object = None              # shipstar.live._ins_live.LiveIns (--ins-udp), or None
 
 
 @dataclass(frozen=True, eq=False)
@@ -186,6 +193,14 @@ class _Live:
         self.t0 = time.monotonic()
         self.udp = (UdpOutput(settings.udp, settings.fmt, settings.method, self.names, self.names[settings.reference])
                     if settings.udp else None)
+        self.console = None
+        if settings.http is not None:              # a port in use: an error before the workers start
+            from shipstar.live._http import Console
+
+            self.console = Console(settings.http, settings.configs, settings.dirs, method=settings.method,
+                                   reference=settings.reference)
+            self.console.start()
+            self.report(f"operator console at {self.console.url}")
         self.workers = SensorWorkers(settings.configs, settings.options)
         self._reader = threading.Thread(target=self._read_results, name="shipstar-live-results", daemon=True)
         self._reader.start()
@@ -263,10 +278,8 @@ class _Live:
         sensor.next_index += 1
         sensor.arrival[index] = when
         config = self.s.configs[self.names.index(sensor.name)]
-        reason = ""
-        if frame.sensor and frame.sensor not in (sensor.name, config.camera.name):
-            reason = f"the frame's header names sensor {frame.sensor!r}, not {sensor.name!r}"
-        elif t_s <= sensor.last_t_s:
+        reason = self._header_reason(sensor, config, info, frame)
+        if not reason and t_s <= sensor.last_t_s:
             reason = (f"frame time {frame.utc_iso} is not later than the sensor's previous frame "
                       f"({sensor.last_t_s - t_s:.6f} s earlier or the same): refused")
         if reason:
@@ -282,6 +295,27 @@ class _Live:
             return
         sensor.waiting.append((index, frame, t_s, site, weather))
         self.dispatch(sensor)
+
+    def _header_reason(self, sensor: _Sensor, config, info, frame) -> str:
+        """Why the frame's header refuses it ('' when it does not): the header cross-checks
+        (a contradiction overridden by --trust-flags is written as a comment where it first
+        arises)."""
+        if not self.s.header_checks:
+            if frame.sensor and frame.sensor not in (sensor.name, config.camera.name):
+                return f"the frame's header names sensor {frame.sensor!r}, not {sensor.name!r}"
+            return ""
+        check = self.s.header_checks[self.names.index(sensor.name)]
+        try:
+            found = check(info)
+        except ShipstarError as exc:
+            return f"refused: {exc}"
+        counts = {o["key"]: o["n_frames"] for o in check.overrides()}
+        for c in found:
+            if counts.get(c.key) == 1:
+                self.report(f"sensor {sensor.name}: --trust-flags: {c.text}")
+                if self.writer is not None:
+                    self.writer.comment(f"header override: sensor {sensor.name}: {c.text}")
+        return ""
 
     def unreadable(self, sensor: _Sensor, name: str, reason: str) -> None:
         sensor.n_unreadable += 1
@@ -306,6 +340,9 @@ class _Live:
                         f"polar_motion_error_arcsec = {eop['polar_motion_error_arcsec']:.3g}"]
             comments += [f"warning: {w}" for w in self.warnings] or [
                 "warnings at the start: none (a warning that arises later is written where it arises)"]
+            if any(c.trust_flags for c in self.s.header_checks):
+                comments.append("trust_flags = true: the flags are used where the frames' FITS headers contradict "
+                                "them (each contradiction is a '# header override:' line where it first arises)")
             self.writer = AttitudeCsvWriter(self.s.out_csv, self.names, start, comments)
 
     def dispatch(self, sensor: _Sensor) -> None:
@@ -358,6 +395,10 @@ class _Live:
             if self.udp is not None:
                 self.udp.emission(e, self.engine.start_utc_jd, degraded=degraded)
             self.stats.add(e)
+            if self.console is not None:
+                self.console.emission(e, self.engine.start_utc_jd)
+            if self.s.ins is not None:                # --ins-udp: the INS corrected by this epoch
+                self.s.ins.star(e)
             for fr in e.frames:
                 arrival = self.sensors[fr.sensor].arrival.pop(fr.index, None)
                 if arrival is not None:
@@ -433,7 +474,8 @@ class _Live:
                                "lag_s": lag, "absent": s.absent, "unsolved_reasons": dict(s.reasons.most_common(5))}
         nav = self.s.nav.stats() if self.s.nav is not None else None
         return {"time_utc": _iso(now_jd), "run_s": round(time.monotonic() - self.t0, 3), "sensors": sensors,
-                "epochs": self.stats.n_epochs if self.stats else 0, "latency": self.latency.quantiles_ms(),
+                "epochs": self.stats.n_epochs if self.stats else 0,
+                "inconsistent": self.stats.n_inconsistent if self.stats else 0, "latency": self.latency.quantiles_ms(),
                 "eop": self.eop, "nav": nav, "warnings": len(self.warnings)}
 
     def send_status(self) -> None:
@@ -446,6 +488,8 @@ class _Live:
                                    st["sensors"][name]["lag_s"], s.interval_unsolved)
                       for name, s in self.sensors.items()]
             self.udp.status(st, health, utc_jd_now(), self.eop)
+        if self.console is not None:
+            self.console.status(st)
         for s in self.sensors.values():
             s.interval_in = s.interval_out = s.interval_unsolved = 0
         stream = self.s.status_stream
@@ -457,7 +501,8 @@ class _Live:
             lat = st["latency"]
             med = "-" if lat["median_ms"] is None else f"{lat['median_ms']:.0f}"
             eop = (st["eop"] or {}).get("quality", "-")
-            stream.write(f"shipstar live: {st['run_s']:.0f} s, {st['epochs']} epochs; " + "; ".join(parts)
+            bad = f" ({st['inconsistent']} inconsistent)" if st["inconsistent"] else ""
+            stream.write(f"shipstar live: {st['run_s']:.0f} s, {st['epochs']} epochs{bad}; " + "; ".join(parts)
                          + f"; latency median {med} ms; Earth orientation {eop}\n")
             stream.flush()
 
@@ -481,6 +526,8 @@ class _Live:
             failed = self._pump(0.02)
             if failed:
                 raise ShipstarError(failed)
+            if self.s.ins is not None:                # --ins-udp: each INS record corrected and sent (every 20 ms)
+                self.s.ins.poll(self.udp)
             now = time.monotonic()
             if now >= next_tail:
                 for tail in self.s.tails:
@@ -541,6 +588,8 @@ class _Live:
 
     def close(self, complete: bool) -> Path | None:
         self.watcher.stop()
+        if self.console is not None:
+            self.console.close()
         self.workers.results.put(("bye",))
         self._reader.join(2.0)
         self.workers.stop()
@@ -575,6 +624,11 @@ class _Live:
                         "warnings": list(self.warnings), "eop": self.eop,
                         "nav": self.s.nav.stats() if self.s.nav is not None else None,
                         "udp": {"sent": self.udp.n_sent, "errors": self.udp.n_errors} if self.udp else None})
+        if self.s.ins is not None:
+            self.s.ins.poll(self.udp)
+            summary["ins"] = self.s.ins.summary()
+        if any(c.trust_flags for c in self.s.header_checks):
+            summary.update(trust_flags=True, header_overrides=[o for c in self.s.header_checks for o in c.overrides()])
         return summary
 
 

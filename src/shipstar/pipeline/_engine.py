@@ -109,6 +109,9 @@ class SessionEngine:
         self._last_t = [-math.inf] * n
         self._source = [None] * n                       # time_source of the sensor's first frame
         self._motion = MotionWindow(n)                  # solved single-sensor deck attitudes
+        from shipstar.pipeline._mounts import MountEstimator
+
+        self._mounts = MountEstimator(self.configs, self.reference) if n > 1 else None   # clocks, flexure
         self._warnings: list = []
         self.n_epochs = 0
 
@@ -126,7 +129,7 @@ class SessionEngine:
     def add(self, fr) -> list:
         """Add one frame result of one sensor; returns the emissions that became final."""
         s = self._index(fr.sensor)
-        t = self.t_s(fr)
+        t = self.t_s(fr) + (self._mounts.shift_s(s) if self._mounts is not None else 0.0)   # clock offset
         if t <= self._last_t[s] + _EPS_S:
             reason = (f"frame time {fr.utc_iso} is not later than the sensor's previous frame "
                       f"({self._last_t[s] - t:.6f} s earlier or the same): refused")
@@ -234,8 +237,13 @@ class SessionEngine:
         motion = None
         if self.options.compensate_motion and any(abs(o) > 1e-6 for o in offsets if math.isfinite(o)):
             motion = self._motion.fit(limits)
-        epoch = fuse_epoch(self.n_epochs, t_k, self.start_utc_jd, self.configs, paired, offsets, motion,
+        configs = self._mounts.configs_for(fr_ref) if self._mounts is not None else self.configs
+        epoch = fuse_epoch(self.n_epochs, t_k, self.start_utc_jd, configs, paired, offsets, motion,
                            self.options, self.roles, reference=self.reference)
+        if self._mounts is not None:                    # clock offsets and flexure (pipeline._mounts)
+            shifts = [0.0 if p is None else t_k + o - self.t_s(p) for p, o in zip(paired, offsets)]
+            fit = motion if motion is not None else self._motion.fit(limits)
+            epoch = replace(epoch, mounts=self._mounts.update(t_k, epoch, paired, shifts, configs, fit))
         self.n_epochs += 1
         self._motion.prune(t_k)
         rows.sort(key=lambda r: (r[0], r[1]))

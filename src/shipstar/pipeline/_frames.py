@@ -126,7 +126,7 @@ def check_sensor_name(frames, name: str, camera_name: str, where) -> None:
                             f"not {name!r}")
 
 
-def scan_frames(directory, *, date_obs_is: str = "start") -> list[Frame]:
+def scan_frames(directory, *, date_obs_is: str = "start", check=None) -> list[Frame]:
     """The FITS frames of a directory, in file-name order, with their mid-exposure times.
 
     Parameters
@@ -137,6 +137,9 @@ def scan_frames(directory, *, date_obs_is: str = "start") -> list[Frame]:
     date_obs_is : {"start", "mid"}
         What the files' DATE-OBS means when they have no DATE-AVG or DATE-BEG: the start
         of the exposure (the FITS standard, the default) or its middle.
+    check : callable, optional
+        Called with each frame's :class:`~shipstar._fitsio.FitsFrameInfo` as it is read
+        (the header cross-checks, :class:`~shipstar.pipeline._header_check.HeaderCheck`).
 
     Returns
     -------
@@ -164,6 +167,8 @@ def scan_frames(directory, *, date_obs_is: str = "start") -> list[Frame]:
     for p in paths:
         info = read_fits_header(p, date_obs_is=date_obs_is)
         jd1, jd2 = info.mid_utc_jd()
+        if check is not None:
+            check(info)
         frames.append(Frame(jd1, jd2, p.name, path=p, sensor=info.sensor_name, time_source=info.time_source,
                             exposure_s=info.exposure_s))
     for a, b in zip(frames, frames[1:]):

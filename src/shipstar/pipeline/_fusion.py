@@ -47,6 +47,9 @@ class Epoch:
         The reference frame's label.
     time_source : str
         How the reference frame's time was found in its file.
+    integrity : Integrity
+        The sensors' deck attitudes checked against each other
+        (:mod:`shipstar.pipeline._integrity`).
     """
 
     index: int
@@ -60,6 +63,8 @@ class Epoch:
     joint: object
     label: str = ""
     time_source: str = ""
+    integrity: object = None
+    mounts: object = None            # pipeline._mounts.MountsSnapshot: clock offsets and flexure
 
     @property
     def utc_iso(self) -> str:
@@ -164,6 +169,7 @@ def fuse_epoch(index: int, t_s: float, start_jd, configs, paired, offsets_s, mot
     -------
     Epoch
     """
+    from shipstar.pipeline._integrity import epoch_integrity
     from shipstar.ship import ShipAttitude
 
     roles = sensor_roles(configs) if roles is None else roles
@@ -177,8 +183,9 @@ def fuse_epoch(index: int, t_s: float, start_jd, configs, paired, offsets_s, mot
         else:
             singles.append(_carried_single(fr, c, d))
     seed, joint = _fuse(paired, configs, roles, deltas, singles, why)
+    integrity = epoch_integrity(configs, paired, singles)
     singles = tuple(singles)
     frame_index = tuple(fr.index if fr is not None else -1 for fr in paired)
     ref = paired[reference]
     return Epoch(index, start_jd[0], start_jd[1] + t_s / 86400.0, float(t_s), frame_index,
-                 tuple(float(x) for x in offsets_s), singles, seed, joint, ref.label, ref.time_source)
+                 tuple(float(x) for x in offsets_s), singles, seed, joint, ref.label, ref.time_source, integrity)

@@ -383,7 +383,7 @@ class _Runner:
 
 
 def run_measure(job: MeasureJob, sources, out, *, truth=None, comments=(), workers=1, resume: bool = False,
-                chunk_s: float = CHUNK_S, progress=None, stop=None) -> MeasureOutcome:
+                chunk_s: float = CHUNK_S, progress=None, stop=None, monitor=None, observer=None) -> MeasureOutcome:
     """Process a whole session in chunks, writing the attitude CSV as it goes.
 
     Parameters
@@ -408,6 +408,11 @@ def run_measure(job: MeasureJob, sources, out, *, truth=None, comments=(), worke
     stop : threading.Event, optional
         Set (by a signal handler) to stop after the current epoch; its ``reason``
         attribute, if any, names the cause in the outcome.
+    monitor : str or Path, optional
+        The mounts' relative attitude per epoch (``measure --monitor``,
+        :class:`~shipstar.pipeline._mounts.MonitorCsvWriter`).
+    observer : object with ``write(emission)``, ``flush()``, ``close()``, optional
+        Given every emission written (``measure --ins`` collects the joint attitudes).
 
     Returns
     -------
@@ -442,6 +447,14 @@ def run_measure(job: MeasureJob, sources, out, *, truth=None, comments=(), worke
     if not isinstance(workers, WorkerPool):
         workers = WorkerPool(job, workers) if int(workers) > 1 else None
     runner = _Runner(job, sources, plan, workers, first_chunk)
+    if monitor is not None:
+        from shipstar.pipeline._mounts import MonitorCsvWriter
+
+        monitor = MonitorCsvWriter(monitor, keep_before_s=resume_t if resume else None,
+                                   start_utc_jd=job.start_utc_jd)
+        writer = _WithMonitor(writer, monitor)
+    if observer is not None:                  # sees every emission written (measure --ins: pipeline._ins.StarRows)
+        writer = _WithMonitor(writer, observer)
     resumed_at = first_chunk * chunk_s if resume else None
     stopped, k = "", 0
     try:
@@ -502,6 +515,32 @@ def run_measure(job: MeasureJob, sources, out, *, truth=None, comments=(), worke
     path = writer.complete()
     checkpoint.unlink(missing_ok=True)
     return MeasureOutcome(stats, True, "", path, tuple(seen_warnings), n_written, resumed_at)
+
+
+class _WithMonitor:
+    """The attitude CSV writer that also writes each epoch's monitor rows."""
+
+    def __init__(self, writer, monitor):
+        self._writer, self._monitor = writer, monitor
+
+    def write(self, emission) -> None:
+        self._writer.write(emission)
+        self._monitor.write(emission)
+
+    def close(self) -> None:
+        self._monitor.close()
+        self._writer.close()
+
+    def sync(self) -> None:
+        self._monitor.flush()
+        self._writer.sync()
+
+    def complete(self):
+        self._monitor.close()
+        return self._writer.complete()
+
+    def __getattr__(self, name):
+        return getattr(self._writer, name)
 
 
 class _Merge:

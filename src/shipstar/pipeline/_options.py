@@ -34,7 +34,9 @@ class PipelineOptions:
         estimated from its star residuals, with relative weights from the extraction's
         per-star Cramer-Rao sigma.
     centroid_floor_px : float
-        Added in quadrature to the extraction's per-star sigma (systematic floor).
+        Added in quadrature to the extraction's per-star sigma (systematic floor); the
+        floor estimated from recent residuals (seeing, ``pipeline._conditions``) replaces it
+        when larger.
     threshold_sigma : float
         Star detection threshold (``shipstar.extract.extract_stars``).
     identify_error_px : float

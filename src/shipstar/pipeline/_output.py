@@ -29,7 +29,7 @@ __all__ = ["ATTITUDE_COLUMNS", "attitude_csv_text", "write_attitude_csv", "emiss
 
 ATTITUDE_COLUMNS = ("time_utc", "t_s", "method", "sensor", "frame", "solved", "heading_deg", "pitch_deg", "roll_deg",
                     "sigma_heading_arcsec", "sigma_pitch_arcsec", "sigma_roll_arcsec", "n_stars", "rms_arcsec",
-                    "reason", "time_source")
+                    "reason", "time_source", "integrity", "integrity_chi2", "suspect_sensor")
 #: A session's CSV is ``OUT + PARTIAL_SUFFIX`` until it is complete.
 PARTIAL_SUFFIX = ".partial"
 
@@ -45,12 +45,14 @@ def _iso(jd1: float, jd2: float) -> str:
     return iso_from_utc_jd(jd1, jd2, 6)
 
 
-def _row(time_utc, t_s, method, sensor, frame, att, rms_arcsec=math.nan, time_source="") -> list:
+def _row(time_utc, t_s, method, sensor, frame, att, rms_arcsec=math.nan, time_source="", integrity=None) -> list:
     sig = att.sigma_rad * RAD2ASEC
+    checks = ["", "", ""] if integrity is None or not integrity.checked else \
+        [integrity.label, _fmt(integrity.chi2, 2), integrity.suspect]
     return [time_utc, _fmt(t_s, 6), method, sensor, frame, "1" if att.solved else "0",
             _fmt(att.heading_rad * RAD2DEG, 9), _fmt(att.pitch_rad * RAD2DEG, 9), _fmt(att.roll_rad * RAD2DEG, 9),
             _fmt(sig[0], 3), _fmt(sig[1], 3), _fmt(sig[2], 3), str(int(att.n_stars)), _fmt(rms_arcsec, 3),
-            att.reason, time_source]
+            att.reason, time_source, *checks]
 
 
 def emission_rows(emission, sensors, start_utc_jd) -> list:
@@ -74,8 +76,10 @@ def emission_rows(emission, sensors, start_utc_jd) -> list:
     if e is not None and len(sensors) > 1:
         both = "+".join(sensors)
         time_utc = _iso(e.utc_jd1, e.utc_jd2)
-        rows.append(_row(time_utc, e.t_s, "seed-rule", both, e.label, e.seed_rule, time_source=e.time_source))
-        rows.append(_row(time_utc, e.t_s, "joint", both, e.label, e.joint, time_source=e.time_source))
+        rows.append(_row(time_utc, e.t_s, "seed-rule", both, e.label, e.seed_rule, time_source=e.time_source,
+                         integrity=e.integrity))
+        rows.append(_row(time_utc, e.t_s, "joint", both, e.label, e.joint, time_source=e.time_source,
+                         integrity=e.integrity))
     return rows
 
 

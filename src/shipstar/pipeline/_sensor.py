@@ -12,8 +12,12 @@ Per frame (seed 003 steps 1-3, 5-6)::
       -> ship attitude with the installation (seed 003 eq. 14-17)
 
 Every extracted object goes to identification, ranked by flux: at sea every star is a
-streak (flagged elongated), so nothing is dropped for its shape; objects that match no
-catalog star within the gates (trails, blends, hot pixels) are left unidentified.
+streak (flagged elongated), so nothing is dropped for its shape alone; objects that match
+no catalog star within the gates (blends, faint hot pixels) are left unidentified.  Before
+that, ``self.conditions`` (:mod:`shipstar.pipeline._conditions`) masks the Moon and the
+Sun and drops trails and persistent pixels; a lost frame with too few stars for its
+pointing is ``clouded``, with the Moon's mask in the image ``moon in field``; the noise
+floor added to each star's sigma is estimated from the residuals (seeing).
 
 Per-frame work outside extraction is kept small: the frame's time was read by
 ``scan_frames`` (only the image is read here, :func:`shipstar._fitsio.read_fits_image`),
@@ -149,6 +153,9 @@ class FrameResult:
         :func:`resolve_frame`); None when the frame failed before the attitude step.
     time_source : str
         How the frame's time was found in its file (:attr:`Frame.time_source`).
+    noise_floor_arcsec : float
+        The sensor's per-star noise floor (seeing, :class:`~shipstar.pipeline._conditions.NoiseFloor`)
+        estimated after this frame, arcsec; NaN for an unsolved frame.
     """
 
     sensor: str
@@ -171,6 +178,7 @@ class FrameResult:
     streak_correction_arcsec: float = 0.0
     solve_inputs: _SolveInputs | None = field(default=None, repr=False)
     time_source: str = ""
+    noise_floor_arcsec: float = math.nan
 
     @classmethod
     def failed(cls, sensor: str, index: int, frame, reason: str) -> "FrameResult":
@@ -295,6 +303,11 @@ class SensorProcessor:
         # the streak correction's motion fit: this sensor's last solved attitudes (sensor axes)
         correct = options.streak_correction and config.installation is not None
         self._motion = MotionWindow(1) if correct else None
+        # the sky's conditions: Moon/Sun masks, trails, cloud, seeing (pipeline._conditions)
+        from shipstar.pipeline._conditions import ConditionMonitor
+
+        self.conditions = ConditionMonitor(config.camera, options)
+        self._floor_used_px = options.centroid_floor_px
 
     @property
     def database(self):
@@ -303,9 +316,10 @@ class SensorProcessor:
         return self._database
 
     # -- steps ---------------------------------------------------------------------------
-    def _measure(self, frame):
+    def _measure(self, frame, t_s: float = math.nan, site=None):
         """``(xy_px (N, 2), sigma_px (N,) or None)``: centroids of the frame, largest flux
-        first (elongated objects included: at sea every star is a streak)."""
+        first (elongated objects included: at sea every star is a streak); the Moon and the
+        Sun masked, trails and persistent pixels dropped (``self.conditions``)."""
         from shipstar._fitsio import read_fits_image
         from shipstar.extract import extract_stars
 
@@ -315,12 +329,23 @@ class SensorProcessor:
         if image is None:
             image = read_fits_image(frame.path)      # the time was read by scan_frames
         cam = self.config.camera
+        prior = self._prior(t_s) if math.isfinite(t_s) else None
+        if prior is not None and site is None:
+            try:
+                site = self.track.site(frame.utc_jd1, frame.utc_jd2)
+            except ShipstarError:
+                prior = None
+        extrapolated = len(self._history) >= 2 and t_s - self._history[-1][0] <= _MAX_PRIOR_GAP_S
+        image = self.conditions.mask(image, frame, site, prior, extrapolated=extrapolated)
         ex = extract_stars(image, threshold_sigma=self.options.threshold_sigma, psf_sigma_px=cam.psf_sigma_px,
                            gain_e_per_adu=cam.gain_e_per_adu)
+        keep = self.conditions.keep(image, ex, prior)
         order = rank_by_flux(ex.flux_adu)
+        order = order[keep[order]]
         sig = ex.xy_sigma_px[order]
         sig = np.where(np.isfinite(sig), sig, 1.0)
-        return ex.xy_px[order], np.hypot(sig, self.options.centroid_floor_px)
+        self._floor_used_px = self.conditions.floor_px()
+        return ex.xy_px[order], np.hypot(sig, self._floor_used_px)
 
     def _prior(self, t_s: float):
         """Predicted C_icrs_from_sensor at ``t_s`` from the last two solved frames (or None)."""
@@ -360,6 +385,8 @@ class SensorProcessor:
         cam, opt = self.config.camera, self.options
         site = self.track.site(frame.utc_jd1, frame.utc_jd2) if site is None else site
         weather = self.weather_table.weather(frame.utc_jd1, frame.utc_jd2) if weather is None else weather
+        # the camera's passband sets the refraction wavelength (camera wavelength_um, docs/camera.md)
+        weather = replace(weather, wavelength_um=cam.wavelength_um)
         rows = np.flatnonzero(hip >= 0)
         if rows.size < 2:
             raise ShipstarError(f"{rows.size} identified stars, at least 2 needed")
@@ -377,10 +404,12 @@ class SensorProcessor:
     def _ship(self, h):
         return ship_from_horizontal(h, self.config.installation)
 
-    def _streaks(self, fr: FrameResult, t_s: float) -> FrameResult:
+    def _streaks(self, fr: FrameResult, t_s: float, extracted: bool = False) -> FrameResult:
         """``fr`` with its measured directions turned to mid-exposure (or unchanged): the
-        sensor's rate and acceleration at ``t_s`` from its own attitudes up to this frame."""
-        from shipstar.pipeline._exposure import streak_corrected
+        sensor's rate and acceleration at ``t_s`` from its own attitudes up to this frame.
+        ``extracted``: the centroids are this pipeline's streak fits (their along-streak
+        offset modelled, ``_exposure.streak_along_factor``), else given time averages."""
+        from shipstar.pipeline._exposure import StreakModel, streak_corrected
 
         h = fr.horizontal
         self._motion.add(0, t_s, h.C_hor_from_sensor, h.covariance_rad2)
@@ -390,7 +419,10 @@ class SensorProcessor:
         fit = self._motion.fit(t_s)
         if fit is None:                          # the sensor's first frames: motion not known yet
             return replace(fr, streak_correction_arcsec=math.nan)
-        return streak_corrected(fr, fit.omega_at(t_s), fit.alpha_at(t_s), self.config.installation, self.options)
+        cam = self.config.camera
+        model = StreakModel(cam.psf_sigma_px, cam.pixel_mm / cam.f_mm) if extracted else None
+        return streak_corrected(fr, fit.omega_at(t_s), fit.alpha_at(t_s), self.config.installation, self.options,
+                                model)
 
     # -- public ----------------------------------------------------------------------------
     def process(self, frame, index: int, t_s: float, *, site=None, weather=None) -> FrameResult:
@@ -405,18 +437,42 @@ class SensorProcessor:
         t0 = time.perf_counter()
         label = frame.label or f"#{index}"
         n_det, n_id, mode, C_icrs = 0, 0, "", _NAN33.copy()
+        measured = False
         try:
-            xy, sigma_px = self._measure(frame)
-            n_det = len(xy)
+            xy, sigma_px = self._measure(frame, t_s, site)
+            n_det, measured = len(xy), True
             hip, mode, C_icrs, u_sensor = self._identify(frame, xy, t_s)
             h, site, weather, n_id, inputs = self._horizontal(frame, xy, sigma_px, hip, u_sensor, site, weather)
         except ShipstarError as exc:
-            return FrameResult(self.config.name, index, label, frame.utc_jd1, frame.utc_jd2, False, str(exc), mode,
-                               n_det, n_id, C_icrs, None, ShipAttitude.failed(str(exc), "single"), None, None,
+            reason = self._lost_reason(str(exc), frame, n_det, t_s) if measured else str(exc)
+            return FrameResult(self.config.name, index, label, frame.utc_jd1, frame.utc_jd2, False, reason, mode,
+                               n_det, n_id, C_icrs, None, ShipAttitude.failed(reason, "single"), None, None,
                                time.perf_counter() - t0, frame.exposure_s, time_source=frame.time_source)
         fr = FrameResult(self.config.name, index, label, frame.utc_jd1, frame.utc_jd2, bool(h.solved), h.reason,
                          mode, n_det, n_id, C_icrs, h, self._ship(h), site, weather, time.perf_counter() - t0,
                          frame.exposure_s, solve_inputs=inputs, time_source=frame.time_source)
         if self._motion is not None and fr.solved:
-            fr = self._streaks(fr, t_s)
+            fr = self._streaks(fr, t_s, extracted=frame.xy_px is None)
+        if fr.solved:
+            self.conditions.add_solved(fr, self._floor_used_px)
+            fr = replace(fr, noise_floor_arcsec=self.noise_floor_arcsec)
+        else:
+            reason = self._lost_reason(fr.reason, frame, n_det, t_s)
+            if reason != fr.reason:
+                fr = replace(fr, reason=reason, ship=ShipAttitude.failed(reason, "single"))
         return fr
+
+    def _lost_reason(self, reason: str, frame, n_detected: int, t_s: float) -> str:
+        """A lost frame's reason: the Moon's or the Sun's, ``clouded`` (too few stars for
+        the pointing) or ``reason`` (``pipeline._conditions``)."""
+        if frame.hip is not None:
+            return reason
+        return self.conditions.reason(reason, n_detected, self.database, self._prior(t_s))
+
+    @property
+    def noise_floor_arcsec(self) -> float:
+        """The per-star noise floor now used (seeing, estimated from the residuals), arcsec."""
+        from shipstar.units import RAD2ASEC
+
+        cam = self.config.camera
+        return self.conditions.floor_px() * cam.pixel_mm / cam.f_mm * RAD2ASEC

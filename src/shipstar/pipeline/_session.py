@@ -91,9 +91,12 @@ def _check_inputs(configs, frame_lists, track, weather) -> None:
     for name, frames in zip(names, frame_lists):
         if not frames:
             raise ShipstarError(f"sensor {name} has no frames")
-        for fr in (frames[0], frames[-1]):
-            track.check_covers(fr.utc_jd1, fr.utc_jd2)
-            weather.check_covers(fr.utc_jd1, fr.utc_jd2)
+        for table in (track, weather):
+            if hasattr(table, "check_covers_all"):        # every frame: ends and gaps of the table
+                table.check_covers_all([fr.utc_jd1 for fr in frames], [fr.utc_jd2 for fr in frames])
+            else:
+                for fr in (frames[0], frames[-1]):
+                    table.check_covers(fr.utc_jd1, fr.utc_jd2)
 
 
 def process_sensor(config, frames, track, weather, options=None, *, start_utc_jd=None, database=None,

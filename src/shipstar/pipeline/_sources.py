@@ -101,6 +101,8 @@ class FitsDirectorySource(FrameSource):
     name : str
     directory : str or Path
     date_obs_is : {"start", "mid"}
+    check : callable, optional
+        Called with each frame's header (:func:`shipstar.pipeline.scan_frames`).
 
     Raises
     ------
@@ -108,12 +110,12 @@ class FitsDirectorySource(FrameSource):
         As :func:`shipstar.pipeline.scan_frames` (no frames, no time, out of order).
     """
 
-    def __init__(self, name: str, directory, *, date_obs_is: str = "start"):
+    def __init__(self, name: str, directory, *, date_obs_is: str = "start", check=None):
         from shipstar.pipeline._frames import scan_frames
 
         self.name = name
         self.directory = str(Path(directory))
-        frames = scan_frames(directory, date_obs_is=date_obs_is)
+        frames = scan_frames(directory, date_obs_is=date_obs_is, check=check)
         self._names = [f.label for f in frames]
         self._jd1 = np.array([f.utc_jd1 for f in frames])
         self._jd2 = np.array([f.utc_jd2 for f in frames])

@@ -167,15 +167,34 @@ class _SensorStats:
         self.max_streak = state.get("max_streak", 0.0)
         self.failures = list(state.get("failures", []))
         self.n_failures = state.get("n_failures", 0)
+        # frames lost to the sky (clouded, the Moon or the Sun in the field): not solver failures
+        self.n_sky = dict(state.get("n_sky", {}))
+        self.first_sky = state.get("first_sky")
+        # the solver's failures by reason (availability), and the seeing estimate (noise floor)
+        self.n_by_reason = dict(state.get("n_by_reason", {}))
+        self.floor = _Median(counts=state.get("floor"))
+        self.last_floor = state.get("last_floor")
 
     def add(self, fr) -> None:
+        from shipstar.pipeline._conditions import ENVIRONMENT_REASONS
+
         self.n_frames += 1
         if fr.solved:
             self.n_solved += 1
             self.stars.add(fr.n_used)
             self.residual.add(fr.rms_arcsec)
+            f = float(getattr(fr, "noise_floor_arcsec", math.nan))
+            if math.isfinite(f) and f > 0.0:
+                self.floor.add(f)
+                self.last_floor = f
+        elif fr.reason in ENVIRONMENT_REASONS:
+            self.n_sky[fr.reason] = self.n_sky.get(fr.reason, 0) + 1
+            if self.first_sky is None:
+                self.first_sky = {"frame": fr.label, "time_utc": fr.utc_iso, "reason": fr.reason}
         else:
             self.n_failures += 1
+            key = _reason_key(fr.reason, self.n_by_reason)
+            self.n_by_reason[key] = self.n_by_reason.get(key, 0) + 1
             if len(self.failures) < _MAX_LISTED_FAILURES:
                 self.failures.append({"frame": fr.label, "time_utc": fr.utc_iso, "reason": fr.reason})
         c = fr.streak_correction_arcsec
@@ -189,16 +208,101 @@ class _SensorStats:
         return {"n_frames": self.n_frames, "n_solved": self.n_solved, "stars": self.stars.counts,
                 "residual": self.residual.counts, "n_streak_corrected": self.n_streak_corrected,
                 "n_streak_not_corrected": self.n_streak_not_corrected, "max_streak": self.max_streak,
-                "failures": self.failures, "n_failures": self.n_failures}
+                "failures": self.failures, "n_failures": self.n_failures, "n_sky": self.n_sky,
+                "first_sky": self.first_sky, "n_by_reason": self.n_by_reason, "floor": self.floor.counts,
+                "last_floor": self.last_floor}
+
+    def availability(self) -> dict:
+        """Solved share and the unsolved frames by reason (the sky's and the solver's)."""
+        reasons = {**self.n_sky, **{k: v for k, v in self.n_by_reason.items() if k not in self.n_sky}}
+        return {"n_frames": self.n_frames, "n_solved": self.n_solved,
+                "solved_fraction": _num(self.n_solved / self.n_frames) if self.n_frames else None,
+                "unsolved_by_reason": dict(sorted(reasons.items(), key=lambda kv: -kv[1]))}
+
+    def seeing(self) -> dict:
+        """The per-star noise floor (seeing) estimated from the residuals: median over the
+        solved frames and the last value, arcsec (None before an estimate)."""
+        return {"noise_floor_arcsec": self.floor.value(), "noise_floor_last_arcsec": _num(self.last_floor)
+                if self.last_floor is not None else None}
 
     def block(self) -> dict:
+        from shipstar.pipeline._conditions import CLOUDED_REASON, MOON_REASON, SUN_REASON
+
         return {
-            "n_frames": self.n_frames, "n_solved": self.n_solved, "n_failed": self.n_frames - self.n_solved,
+            "n_frames": self.n_frames, "n_solved": self.n_solved, "n_failed": self.n_failures,
+            "n_clouded": self.n_sky.get(CLOUDED_REASON, 0), "n_moon_in_field": self.n_sky.get(MOON_REASON, 0),
+            "n_sun_in_field": self.n_sky.get(SUN_REASON, 0),
             "median_stars_used": self.stars.value(), "median_residual_rms_arcsec": self.residual.value(),
             "n_streak_corrected": self.n_streak_corrected, "n_streak_not_corrected": self.n_streak_not_corrected,
             "max_streak_correction_arcsec": self.max_streak,
             "failures": list(self.failures), "failures_not_listed": self.n_failures - len(self.failures),
         }
+
+
+#: Distinct failure reasons counted apart in ``availability`` (the rest: ``other``).
+_MAX_REASONS = 20
+
+
+def _reason_key(reason: str, counted: dict) -> str:
+    """A failure reason as an availability key: numbers replaced by ``N`` (so "3 stars" and
+    "4 stars" count together), at most :data:`_MAX_REASONS` distinct keys."""
+    import re
+
+    key = re.sub(r"[-+]?\d+(\.\d+)?(e[-+]?\d+)?", "N", str(reason or "unknown"))[:100]
+    return key if key in counted or len(counted) < _MAX_REASONS else "other"
+
+
+#: The reason of the fused rows of a session's first epochs, before the deck's motion is
+#: known (not counted as unsolved by :attr:`SessionStats.n_fused_unsolved`).
+WARM_UP_REASON = "the deck's motion is not known yet"
+
+
+class _IntegrityStats:
+    """Epochs checked by the integrity monitor, inconsistent ones and their suspects."""
+
+    def __init__(self, state=None):
+        state = state or {}
+        self.n_checked = state.get("n_checked", 0)
+        self.n_inconsistent = state.get("n_inconsistent", 0)
+        self.suspects = dict(state.get("suspects", {}))
+        self.listed = list(state.get("listed", []))
+        self.max_chi2 = state.get("max_chi2", None)
+        self.limit = state.get("limit", None)
+        self.n_fused_unsolved = state.get("n_fused_unsolved", 0)
+        self.n_warm_up = state.get("n_warm_up", 0)
+
+    def add(self, e) -> None:
+        if not e.joint.solved:
+            if e.joint.reason.startswith(WARM_UP_REASON):
+                self.n_warm_up += 1
+            else:
+                self.n_fused_unsolved += 1
+        i = e.integrity
+        if i is None or not i.checked:
+            return
+        self.n_checked += 1
+        self.limit = i.limit
+        self.max_chi2 = i.chi2 if self.max_chi2 is None else max(self.max_chi2, i.chi2)
+        if not i.consistent:
+            self.n_inconsistent += 1
+            self.suspects[i.suspect] = self.suspects.get(i.suspect, 0) + 1
+            if len(self.listed) < _MAX_LISTED_FAILURES:
+                self.listed.append({"frame": e.label, "time_utc": e.utc_iso, "chi2": round(i.chi2, 2),
+                                    "disagreement_arcsec": round(i.disagreement_arcsec, 2), "suspect": i.suspect})
+
+    def state(self) -> dict:
+        return {"n_checked": self.n_checked, "n_inconsistent": self.n_inconsistent, "suspects": self.suspects,
+                "listed": self.listed, "max_chi2": self.max_chi2, "limit": self.limit,
+                "n_fused_unsolved": self.n_fused_unsolved, "n_warm_up": self.n_warm_up}
+
+    def block(self) -> dict:
+        from shipstar.pipeline._integrity import FALSE_ALARM_PROBABILITY
+
+        return {"n_checked": self.n_checked, "n_inconsistent": self.n_inconsistent,
+                "suspects": dict(self.suspects), "chi2_limit": self.limit, "max_chi2": self.max_chi2,
+                "false_alarm_probability": FALSE_ALARM_PROBABILITY, "inconsistent": list(self.listed),
+                "inconsistent_not_listed": self.n_inconsistent - len(self.listed),
+                "n_fused_unsolved": self.n_fused_unsolved, "n_warm_up": self.n_warm_up}
 
 
 class SessionStats:
@@ -221,6 +325,8 @@ class SessionStats:
         self._sensors = {s: _SensorStats(state.get("sensors", {}).get(s)) for s in self.sensors}
         names = [f"single:{s}" for s in self.sensors] + (["seed-rule", "joint"] if len(self.sensors) > 1 else [])
         self._methods = {m: _MethodStats(state.get("methods", {}).get(m)) for m in names}
+        self._integrity = _IntegrityStats(state.get("integrity"))
+        self._mounts = state.get("mounts")              # the last epoch's clock offsets and flexure
 
     def add(self, emission) -> None:
         """Count one :class:`~shipstar.pipeline._engine.Emission`."""
@@ -231,13 +337,62 @@ class SessionStats:
         if e is None:
             return
         self.n_epochs += 1
+        if getattr(e, "mounts", None) is not None:
+            self._mounts = {"time_offsets_s": e.mounts.time_offsets_s, "flexure": e.mounts.flexure}
         if len(self.sensors) > 1:
+            self._integrity.add(e)
             self._methods["seed-rule"].add(e.seed_rule, self.truth, e.utc_jd1, e.utc_jd2)
             self._methods["joint"].add(e.joint, self.truth, e.utc_jd1, e.utc_jd2)
 
     @property
     def n_failed(self) -> int:
-        return sum(s.n_frames - s.n_solved for s in self._sensors.values())
+        """Frames the solver lost (frames lost to the sky -- clouded, the Moon or the Sun in the
+        field -- are counted apart, :attr:`n_sky`)."""
+        return sum(s.n_failures for s in self._sensors.values())
+
+    @property
+    def n_sky(self) -> int:
+        """Frames lost to the sky: clouded, the Moon or the Sun in the field."""
+        return sum(sum(s.n_sky.values()) for s in self._sensors.values())
+
+    @property
+    def n_inconsistent(self) -> int:
+        """Epochs whose sensors disagree beyond their combined uncertainty."""
+        return self._integrity.n_inconsistent
+
+    @property
+    def n_fused_unsolved(self) -> int:
+        """Epochs without a fused attitude, the warm-up's first epochs not counted."""
+        return self._integrity.n_fused_unsolved
+
+    def problems_line(self) -> str:
+        """``''`` when every frame solved and every epoch is fused and consistent, else the
+        counts in one line (``measure`` and ``live`` print it)."""
+        parts = []
+        n_frames = sum(s.n_frames for s in self._sensors.values())
+        if self.n_failed or self.n_sky:
+            # every unsolved frame counts (exit 1), those lost to the sky named apart
+            sky = {}
+            for st in self._sensors.values():
+                for reason, n in st.n_sky.items():
+                    sky[reason] = sky.get(reason, 0) + n
+            kinds = ([f"{self.n_failed} not solved"] if self.n_failed and sky else []) + \
+                [f"{n} {reason}" for reason, n in sorted(sky.items())]
+            first = self.first_failure() or next((name, st.first_sky["frame"], st.first_sky["reason"])
+                                                 for name, st in self._sensors.items() if st.first_sky)
+            sensor, label, reason = first
+            parts.append(f"{self.n_failed + self.n_sky} of {n_frames} frames unsolved ("
+                         + "".join(f"{k}; " for k in kinds) + f"first: {sensor} {label}: {reason})")
+        if self.n_fused_unsolved:
+            parts.append(f"{self.n_fused_unsolved} of {self.n_epochs} epochs without a fused attitude")
+        if self.n_inconsistent:
+            i = self._integrity
+            who = ", ".join(f"{k} in {v}" for k, v in sorted(i.suspects.items(), key=lambda kv: -kv[1]))
+            first = i.listed[0] if i.listed else None
+            parts.append(f"{i.n_inconsistent} of {i.n_checked} epochs inconsistent (the sensor that does not fit: "
+                         f"{who}" + (f"; first: {first['frame']}, {first['disagreement_arcsec']:.1f}'', chi2 "
+                                     f"{first['chi2']:.1f} > {i.limit:.1f}" if first else "") + ")")
+        return "; ".join(parts)
 
     def unsolved_sensors(self) -> list:
         """``[(sensor, n_frames, first reason), ...]`` of the sensors with frames none of
@@ -255,7 +410,8 @@ class SessionStats:
     def state(self) -> dict:
         """JSON-able state (to continue with ``SessionStats(..., state=...)``)."""
         return {"n_epochs": self.n_epochs, "sensors": {k: v.state() for k, v in self._sensors.items()},
-                "methods": {k: v.state() for k, v in self._methods.items()}}
+                "methods": {k: v.state() for k, v in self._methods.items()}, "integrity": self._integrity.state(),
+                "mounts": self._mounts}
 
     def summary(self, *, reference_sensor: str, fore_aft_sensor: str, athwartship_sensor: str, options) -> dict:
         """The JSON-able summary (the structure of :func:`session_summary`)."""
@@ -267,7 +423,21 @@ class SessionStats:
             "refraction_model": options.refraction_model, "refraction": options.refraction,
             "streak_correction": options.streak_correction,
             "methods": {m: b.block(self.truth is not None) for m, b in self._methods.items()},
+            "availability": {name: s.availability() for name, s in self._sensors.items()},
+            "seeing": {name: s.seeing() for name, s in self._sensors.items()},
+            **({"integrity": self._integrity.block()} if len(self.sensors) > 1 else {}),
+            **(self._mounts_block(reference_sensor) if len(self.sensors) > 1 else {}),
         }
+
+    def _mounts_block(self, reference_sensor: str) -> dict:
+        """``time_offsets_s`` and ``flexure`` (pipeline._mounts): one entry per non-reference sensor."""
+        m = self._mounts or {}
+        others = [s for s in self.sensors if s != reference_sensor]
+        none = {"offset_s": None, "sigma_s": None, "applied": False}
+        return {"time_offsets_s": {s: m.get("time_offsets_s", {}).get(s, none) for s in others},
+                "flexure": {s: m.get("flexure", {}).get(s, {"n_epochs": 0, "applied": False}) for s in others},
+                "attitude_refers_to": f"the mount of the reference sensor {reference_sensor} (the other mounts' "
+                                      f"estimated flexure applied where significant)"}
 
 
 def session_summary(result, truth=None) -> dict:

@@ -75,9 +75,13 @@ def session_report(result, path, *, truth=None, title: str = "shipstar session r
     rep = Report(title, subtitle=f"sensors {', '.join(result.sensors)}; refraction {result.options.refraction_model} "
                                  f"({result.options.refraction}); {summary['n_epochs']} epochs")
     rep.section("Frames")
-    rep.table(["sensor", "frames", "solved", "failed", "median stars used", "median residual RMS (\u2033)"],
+    seeing = summary.get("seeing", {})
+    rep.table(["sensor", "frames", "solved", "failed", "median stars used", "median residual RMS (\u2033)",
+               "clouded", "Moon / Sun in field", "seeing: noise floor (\u2033)"],
               [[s, b["n_frames"], b["n_solved"], b["n_failed"], _fmt(b["median_stars_used"], 0),
-                _fmt(b["median_residual_rms_arcsec"])] for s, b in summary["sensors"].items()])
+                _fmt(b["median_residual_rms_arcsec"]), b.get("n_clouded", 0),
+                b.get("n_moon_in_field", 0) + b.get("n_sun_in_field", 0),
+                _fmt(seeing.get(s, {}).get("noise_floor_arcsec"))] for s, b in summary["sensors"].items()])
     fails = [f"{s} {f['frame']} ({f['time_utc']}): {f['reason']}" for s, b in summary["sensors"].items()
              for f in b["failures"]]
     if fails:
@@ -102,4 +106,7 @@ def session_report(result, path, *, truth=None, title: str = "shipstar session r
     elif len(result.sensors) > 1:
         rep.figure(plot_attitude_errors(_minus_joint(result, methods)),
                    "Each method minus the joint solution (no truth given).", "methods minus joint")
+    from shipstar.report._conditions_plot import conditions_section, monitor_series
+
+    conditions_section(rep, summary, monitor_series(result) if len(result.sensors) > 1 else None)
     return rep.write(path)

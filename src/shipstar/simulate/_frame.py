@@ -15,6 +15,7 @@ then renders the image with :func:`render` (``_render.render_frame``).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import zlib
 from dataclasses import dataclass
@@ -341,6 +342,7 @@ def simulate_frame(camera, *, C_icrs_from_sensor=None, C_hor_from_sensor=None, s
             raise ShipstarError(f"site must be a shipstar.sky.apparent.Site, got {type(site).__name__}")
         context, model = frame_context(jd1, jd2, site, eop), refraction_model
         weather = Weather() if weather is None else weather
+        weather = dataclasses.replace(weather, wavelength_um=camera.wavelength_um)   # the camera's passband
         approx = np.asarray(context.C_hor_from_icrs_approx)
         C_hor = approx @ C_icrs if C_hor is None else C_hor
         C_icrs = approx.T @ C_hor if C_icrs is None else C_icrs

@@ -20,7 +20,7 @@ one zero point.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -201,7 +201,8 @@ def simulate_stars_horizontal(camera, C_hor_from_sensor, context, weather=None,
     context : shipstar.sky.apparent.FrameContext
         Time (mid-exposure) and site.
     weather : shipstar.sky.refraction.Weather, optional
-        Default ``Weather()`` (1013.25 hPa, 10 C).
+        Default ``Weather()`` (1013.25 hPa, 10 C); its wavelength is replaced by the
+        camera's ``wavelength_um``.
     refraction_model : {"almanac", "erfa", "none"}
     mag_limit, catalog : see :func:`simulate_stars`.
     omega_sensor_rad_per_s : (3,) array, optional
@@ -224,6 +225,8 @@ def simulate_stars_horizontal(camera, C_hor_from_sensor, context, weather=None,
     if not isinstance(context, FrameContext):
         raise ShipstarError(f"context must be a shipstar.sky.apparent.FrameContext, got {type(context).__name__}")
     weather = Weather() if weather is None else weather
+    # the camera's passband sets the refraction wavelength (docs/camera.md), as in the pipeline
+    weather = replace(weather, wavelength_um=camera.wavelength_um)
     el_min_true = min_true_el_rad(weather, refraction_model)      # validates weather and model
     omega = as_rate_rad_per_s(omega_sensor_rad_per_s)
     if earth_rotation:

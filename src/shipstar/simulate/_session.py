@@ -206,6 +206,9 @@ class SessionSpec:
     centroid_sigma_px: float = 0.1
     exposure_s: float | None = None
     seed: int = 0
+    #: ``shipstar.simulate._conditions.Conditions`` (cloud, Moon, seeing, clocks, flexure, ...;
+    #: images and centroids, see ``apply_conditions``) or None: the clean simulation.
+    conditions: object | None = None
 
     def __post_init__(self):
         from shipstar.sky.time import utc_jd_from_iso
@@ -382,6 +385,8 @@ class CentroidFrame:
     xy_true_px: np.ndarray
     C_hor_from_sensor: np.ndarray
     C_hor_from_deck: np.ndarray = field(repr=False)
+    #: With ``spec.conditions``: the frame's true condition values (``_conditions.centroid_frame``).
+    conditions: dict | None = field(default=None, repr=False)
 
 
 def _centroid_frame(spec: SessionSpec, s: SensorSetup, k: int, t: float, rng) -> CentroidFrame:
@@ -403,6 +408,10 @@ def simulate_centroids(spec: SessionSpec) -> dict[str, list[CentroidFrame]]:
 
     Deterministic for a given ``spec.seed`` (each sensor gets its own noise stream).
     """
+    if spec.conditions is not None:
+        from shipstar.simulate._conditions import simulate_centroids_with_conditions
+
+        return simulate_centroids_with_conditions(spec)
     out = {}
     for j, s in enumerate(spec.sensors):
         rng = np.random.default_rng([spec.seed, j])
@@ -520,7 +529,7 @@ def _sensor_frame(spec: SessionSpec, s: SensorSetup, k: int, t: float):
     seed = int(np.random.SeedSequence([spec.seed, k, sum(map(ord, s.name))]).generate_state(1, np.uint64)[0]) >> 1
     camera = s.camera.replace(exposure_s=spec.exposure_of(s))
     jd1, jd2 = spec.utc_jd(t)
-    context, weather = frame_context(jd1, jd2, spec.site(t)), spec.weather(t)
+    context, weather = frame_context(jd1, jd2, spec.site(t)), replace(spec.weather(t), wavelength_um=camera.wavelength_um)
     C_hs = pose.C_hor_from_sensor
     stars = simulate_stars_horizontal(camera, C_hs, context, weather, spec.refraction_model,
                                       mag_limit=spec.mag_limit, omega_sensor_rad_per_s=omega)
@@ -611,6 +620,10 @@ def write_session(spec: SessionSpec, out_dir, *, progress=None,
 
     if not isinstance(spec, SessionSpec):
         raise ShipstarError(f"write_session needs a SessionSpec, got {type(spec).__name__}")
+    if spec.conditions is not None:
+        from shipstar.simulate._conditions import write_session_with_conditions
+
+        return write_session_with_conditions(spec, out_dir, progress=progress, max_output_bytes=max_output_bytes)
     out = Path(out_dir)
     _preflight(spec, out, max_output_bytes)
     try:

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import functools
 import math
+import os
 import warnings
 from dataclasses import dataclass
 
@@ -56,6 +57,9 @@ __all__ = [
     "EopTableInfo",
     "earth_orientation",
     "eop_table_info",
+    "set_eop_file",
+    "eop_source",
+    "EOP_FILE_ENV",
     "QUALITIES",
     "MAX_DUT1_ERROR_S",
     "UT1_TREND_WINDOW_DAYS",
@@ -224,6 +228,38 @@ def _table(path: str | None = None) -> _Table:
     return _parse_finals(path)
 
 
+#: Environment variable holding the IERS table in use (``--eop FILE``); an environment
+#: variable so that worker processes (fork or spawn) use the same table.
+EOP_FILE_ENV = "SHIPSTAR_EOP_FILE"
+
+
+def _active_table() -> _Table:
+    return _table(os.environ.get(EOP_FILE_ENV) or None)
+
+
+def set_eop_file(path) -> str:
+    """Use the IERS ``finals2000A`` table ``path`` (a newer one than the packaged
+    ``astropy-iers-data`` file) for every Earth orientation from now on, in this process and
+    the processes it starts; ``None`` goes back to the packaged table.  The file is read and
+    checked at once (one-line :class:`ShipstarError` naming it).  Returns its absolute path
+    (what :func:`eop_source` then reports)."""
+    if path is None:
+        os.environ.pop(EOP_FILE_ENV, None)
+        return eop_source()
+    full = os.path.abspath(os.fspath(path))
+    if not os.path.isfile(full):
+        raise ShipstarError(f"IERS table {path}: no such file")
+    _table(full)                                   # parse now: a bad file is refused before any work
+    os.environ[EOP_FILE_ENV] = full
+    return full
+
+
+def eop_source() -> str:
+    """Where Earth orientation comes from: the table's path (``--eop FILE``, or the packaged
+    ``finals2000A.all`` of astropy-iers-data)."""
+    return _active_table().source
+
+
 # ---------------------------------------------------------------------------------------
 # Extrapolation model
 # ---------------------------------------------------------------------------------------
@@ -328,7 +364,7 @@ def _interpolate(table: _Table, mjd: float, tai_utc: float) -> EarthOrientation:
 
 def eop_table_info() -> EopTableInfo:
     """Coverage of the shipped IERS table: first, last measured, last row, horizon."""
-    table = _table()
+    table = _active_table()
     _, _, last_measured = _extrapolation_model(table)
     return EopTableInfo(
         source=table.source, first_mjd=float(table.mjd[0]), last_measured_mjd=last_measured,
@@ -370,7 +406,7 @@ def earth_orientation(utc_jd1, utc_jd2=0.0) -> EarthOrientation:
         raise ShipstarError(f"time must be a two-part Julian date, got {utc_jd1!r}, {utc_jd2!r}") from None
     if not (math.isfinite(jd1) and math.isfinite(jd2)):
         raise ShipstarError(f"time must be finite, got JD {utc_jd1!r} + {utc_jd2!r}")
-    table = _table()
+    table = _active_table()
     mjd = (jd1 - MJD_ZERO_JD) + jd2
     if mjd < table.mjd[0]:
         raise ShipstarError(
@@ -385,7 +421,7 @@ def earth_orientation(utc_jd1, utc_jd2=0.0) -> EarthOrientation:
             raise ShipstarError(
                 f"time {_date(mjd)} is too far past the end of the IERS table "
                 f"({_date(table.mjd[-1])}): shipstar extrapolates Earth orientation only up to "
-                f"{_date(horizon)} ({why}); update astropy-iers-data")
+                f"{_date(horizon)} ({why}); update astropy-iers-data or give a newer table with --eop FILE")
         eop = _extrapolate(table, mjd, tai_utc)
         warnings.warn(
             f"Earth orientation at {_date(mjd)} is extrapolated {mjd - table.mjd[-1]:.0f} days "

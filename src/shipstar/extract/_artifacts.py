@@ -1,0 +1,149 @@
+"""Objects of a frame that are not stars: trails and persistent (hot) pixels.
+
+The extraction itself rejects single-pixel events (hot pixels, cosmic rays: sharper than
+the PSF, ``_point.too_sharp`` / ``_matched``) and reports a trail that crosses a frame as
+its strongest peak only, flagged ``elongated``.  What is left for the caller to reject
+before identification:
+
+- **trails** (:func:`trail_mask`): a detection flagged ``elongated`` or ``fit_failed``
+  (a trail's pieces) whose connected region, in the frame smoothed with a 3 x 3 box and
+  cut at 2.5 sigma of the smoothed noise, is much longer than one star's streak (the
+  frame's common smear ``smear_px`` plus the PSF) and narrow: a satellite or aircraft
+  line.  Stars on a trail go with it.
+- **persistent pixels** (:class:`PersistentPixels`): detections at the same pixel frame
+  after frame while the stars move across the detector (the sensor turns by more than
+  ``min_motion_px`` per frame): a hot pixel or a defect, whatever its shape.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from shipstar.extract._result import FLAG_ELONGATED, FLAG_FIT_FAILED
+
+__all__ = ["trail_mask", "PersistentPixels", "TRAIL_MIN_LENGTH_PX", "TRAIL_MIN_AXIS_RATIO"]
+
+#: A region at least this long (px, along its major axis) ...
+TRAIL_MIN_LENGTH_PX = 25.0
+#: ... and at least this many times longer than wide is a trail.
+TRAIL_MIN_AXIS_RATIO = 3.0
+#: Half-size of the window searched around a candidate (px); a region reaching its border
+#: is at least this long.
+_WINDOW_HALF_PX = 40
+#: Cut of the 3 x 3 smoothed frame, in sigma of its noise.
+_CUT_SIGMA = 2.5
+
+
+def _region_shape(image, x: float, y: float, background: float, noise: float):
+    """``(length_px, width_px)`` of the smoothed region around ``(x, y)`` (0, 0 if none)."""
+    from scipy import ndimage
+
+    h, w = image.shape
+    ix, iy = int(round(x)), int(round(y))
+    x0, x1 = max(ix - _WINDOW_HALF_PX, 0), min(ix + _WINDOW_HALF_PX + 1, w)
+    y0, y1 = max(iy - _WINDOW_HALF_PX, 0), min(iy + _WINDOW_HALF_PX + 1, h)
+    win = ndimage.uniform_filter(np.asarray(image[y0:y1, x0:x1], np.float32), 3, mode="nearest")
+    above = win > background + _CUT_SIGMA * noise / 3.0
+    labels, n = ndimage.label(above)
+    if n == 0:
+        return 0.0, 0.0
+    cx, cy = min(max(ix - x0, 0), x1 - x0 - 1), min(max(iy - y0, 0), y1 - y0 - 1)
+    near = labels[max(cy - 2, 0):cy + 3, max(cx - 2, 0):cx + 3]
+    ids = near[near > 0]
+    if ids.size == 0:
+        return 0.0, 0.0
+    yy, xx = np.nonzero(labels == np.bincount(ids).argmax())
+    if xx.size < 3:
+        return float(xx.size), 1.0
+    pts = np.stack([xx, yy], axis=1).astype(float)
+    pts -= pts.mean(axis=0)
+    evals, evecs = np.linalg.eigh(pts.T @ pts / len(pts))
+    major = pts @ evecs[:, 1]
+    minor = pts @ evecs[:, 0]
+    return float(major.max() - major.min() + 1.0), float(minor.max() - minor.min() + 1.0)
+
+
+def trail_mask(image, extraction, *, smear_px=None) -> np.ndarray:
+    """``(N,)`` bool: the extraction's detections that lie on a trail (see the module).
+
+    Parameters
+    ----------
+    image : (H, W) array
+        The frame the extraction was made from.
+    extraction : Extraction
+    smear_px : (2,), optional
+        The frame's common smear (default: the extraction's).
+    """
+    ex = extraction
+    out = np.zeros(len(ex), dtype=bool)
+    cand = np.flatnonzero((ex.flags & (FLAG_ELONGATED | FLAG_FIT_FAILED)) != 0)
+    if cand.size == 0:
+        return out
+    smear = ex.smear_px if smear_px is None else np.asarray(smear_px, float)
+    psf = ex.psf_sigma_px if math.isfinite(ex.psf_sigma_px) else 1.0
+    star_px = float(np.hypot(*smear)) + 6.0 * psf
+    min_length = max(TRAIL_MIN_LENGTH_PX, 2.0 * star_px + 10.0)
+    noise = ex.noise_adu if ex.noise_adu > 0 else 1.0
+    for i in cand:
+        length, width = _region_shape(image, ex.xy_px[i, 0], ex.xy_px[i, 1], ex.background_adu, noise)
+        out[i] = length >= min_length and length >= TRAIL_MIN_AXIS_RATIO * width
+    return out
+
+
+class PersistentPixels:
+    """Detections at the same pixel in earlier frames while the stars moved on.
+
+    Each frame's detections are kept (their pixels) for the last ``n_frames`` frames with
+    a token of the frame's pointing.  A detection is persistent when within 1 px of a
+    detection of at least ``min_count`` of those frames for which ``displacement_px``
+    says a star at its place would have moved by ``min_motion_px`` or more (so a field
+    at rest, as in dock, flags nothing; a star that comes back to the same pixel as the
+    ship rolls back is not flagged either: the displacement is the net one).
+
+    Parameters
+    ----------
+    n_frames, min_count : int
+    min_motion_px : float
+    """
+
+    def __init__(self, n_frames: int = 50, min_count: int = 2, min_motion_px: float = 3.0):
+        self.n_frames = int(n_frames)
+        self.min_count = int(min_count)
+        self.min_motion_px = float(min_motion_px)
+        self._frame = 0                 # frames remembered so far
+        self._tokens: dict = {}         # frame number -> token
+        self._pixels: dict = {}         # (ix, iy) -> [frame numbers]
+
+    def update(self, xy_px, token=None, displacement_px=None) -> np.ndarray:
+        """``(N,)`` bool for the frame's detections ``xy_px`` (N, 2).
+
+        ``token``: this frame's pointing (None: unknown, the frame is not remembered);
+        ``displacement_px(token_then, token_now, xy (M, 2)) -> (M,)``: how far a star now
+        at ``xy`` was from there in the frame of ``token_then``.
+        """
+        xy = np.asarray(xy_px, float).reshape(-1, 2)
+        ij = np.rint(xy).astype(np.int64).tolist() if xy.size else []
+        out = np.zeros(len(xy), dtype=bool)
+        oldest = self._frame - self.n_frames
+        if token is not None and displacement_px is not None and self._tokens:
+            for k, (i, j) in enumerate(ij):
+                frames = {f for di in (-1, 0, 1) for dj in (-1, 0, 1)
+                          for f in self._pixels.get((i + di, j + dj), ()) if f > oldest}
+                if len(frames) < self.min_count:
+                    continue
+                moved = [displacement_px(self._tokens[f], token, xy[k:k + 1])[0] >= self.min_motion_px
+                         for f in frames]
+                out[k] = sum(moved) >= self.min_count
+        if token is None:
+            return out
+        self._tokens[self._frame] = token
+        self._tokens.pop(oldest, None)
+        for key in {(i, j) for i, j in ij}:
+            self._pixels.setdefault(key, []).append(self._frame)
+        self._frame += 1
+        if len(self._pixels) > 200 * self.n_frames:          # forget pixels not seen lately
+            self._pixels = {key: [f for f in v if f > oldest] for key, v in self._pixels.items()
+                            if v[-1] > oldest}
+        return out

@@ -1,0 +1,190 @@
+"""What the real sky does to one sensor's frames, detected (issue 14 item 2).
+
+One :class:`ConditionMonitor` per :class:`~shipstar.pipeline._sensor.SensorProcessor`:
+
+- **the Moon and the Sun** (:mod:`shipstar.pipeline._skylight`): placed in the field with
+  the tracking prior and masked before extraction; detections in the mask are dropped;
+- **trails and persistent pixels** (:mod:`shipstar.extract._artifacts`) are dropped before
+  identification (single-pixel hot pixels and cosmic rays are rejected by the extraction
+  itself, as sharper than the PSF);
+- **cloud**: a frame that does not solve and whose detections (after the above) are
+  fewer than :data:`CLOUDED_FRACTION` of the catalog stars the database predicts in the
+  field (:func:`expected_stars`, at the prior's pointing) is unsolved with reason
+  :data:`CLOUDED_REASON`, not a solver failure; a frame lost with a body's mask in the
+  image gets :data:`MOON_REASON` (or :data:`SUN_REASON`).  Partly clouded frames are
+  solved with the stars they have;
+- **seeing** (:class:`NoiseFloor`): the per-star noise floor added in quadrature to the
+  extraction's Cramer-Rao sigma is estimated from the attitude residuals of the last
+  :data:`FLOOR_FRAMES` solved frames (a median, robust to outliers and to a few
+  misidentified stars), never below ``PipelineOptions.centroid_floor_px``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import numpy as np
+
+__all__ = ["ConditionMonitor", "NoiseFloor", "expected_stars", "CLOUDED_REASON", "MOON_REASON", "SUN_REASON",
+           "CLOUDED_FRACTION", "ENVIRONMENT_REASONS"]
+
+#: Reason of a frame lost to cloud (too few stars for the pointing).
+CLOUDED_REASON = "clouded"
+#: Reason of a frame lost with the Moon's (the Sun's) mask in the image.
+MOON_REASON = "moon in field"
+SUN_REASON = "sun in field"
+#: Reasons that are the sky's, not the solver's (counted apart in the summary).
+ENVIRONMENT_REASONS = (CLOUDED_REASON, MOON_REASON, SUN_REASON)
+#: A lost frame with fewer detections than this fraction of the expected stars is clouded.
+CLOUDED_FRACTION = 0.3
+#: Solved frames whose residuals estimate the noise floor.
+FLOOR_FRAMES = 20
+#: Fewest residuals (stars, pooled over those frames) for an estimate.
+FLOOR_MIN_STARS = 30
+_LN2x2 = 2.0 * math.log(2.0)          # median of chi-square with 2 degrees of freedom
+
+
+def expected_stars(database, camera, C_icrs_from_sensor=None) -> float:
+    """Catalog stars of ``database`` (its magnitude limit) in ``camera``'s image at the
+    pointing ``C_icrs_from_sensor``; without a pointing, the sky's average for the field."""
+    if C_icrs_from_sensor is None or not np.all(np.isfinite(C_icrs_from_sensor)):
+        fx, fy = database.params.fov_x_rad, database.params.fov_y_rad
+        return float(database.n_stars * fx * fy / (4.0 * math.pi))
+    v = np.asarray(database.u_icrs, float) @ np.asarray(C_icrs_from_sensor, float)
+    v = v[v[:, 0] > 0.0]
+    return float(np.count_nonzero(camera.in_image(camera.project(v))))
+
+
+class NoiseFloor:
+    """Per-star noise floor (px, 1 sigma per axis) from recent attitude residuals.
+
+    Each solved frame adds its inlier stars' squared residuals ``r2`` (px^2, the 2-D
+    residual, corrected for the fit's 3 degrees of freedom) and their Cramer-Rao
+    variances ``cr2``.  The floor ``f`` solves ``median(r2 / (cr2 + f^2)) = 2 ln 2`` (the
+    median of chi-square with 2 degrees of freedom); 0 when the Cramer-Rao sigmas alone
+    already explain the residuals.
+    """
+
+    def __init__(self, n_frames: int = FLOOR_FRAMES, min_stars: int = FLOOR_MIN_STARS):
+        self._frames: deque = deque(maxlen=int(n_frames))
+        self.min_stars = int(min_stars)
+        self._cache = None
+
+    def add(self, r2_px2, cr2_px2) -> None:
+        r2 = np.asarray(r2_px2, float)
+        cr2 = np.asarray(cr2_px2, float)
+        n = r2.size
+        ok = np.isfinite(r2) & np.isfinite(cr2) & (cr2 >= 0.0)
+        if n < 3 or not np.any(ok):
+            return
+        self._frames.append((r2[ok] / (1.0 - 1.5 / n), cr2[ok]))
+        self._cache = None
+
+    @property
+    def n_stars(self) -> int:
+        return int(sum(len(r) for r, _ in self._frames))
+
+    def estimate_px(self) -> float:
+        """The floor (px), NaN with fewer than ``min_stars`` residuals."""
+        if self._cache is not None:
+            return self._cache
+        if self.n_stars < self.min_stars:
+            return math.nan
+        r2 = np.concatenate([r for r, _ in self._frames])
+        cr2 = np.concatenate([c for _, c in self._frames])
+        if np.median(r2 / np.maximum(cr2, 1e-12)) <= _LN2x2:
+            self._cache = 0.0
+            return 0.0
+        lo, hi = 0.0, float(np.max(r2))
+        for _ in range(40):
+            mid = 0.5 * (lo + hi)
+            if np.median(r2 / (cr2 + mid)) > _LN2x2:
+                lo = mid
+            else:
+                hi = mid
+        self._cache = math.sqrt(0.5 * (lo + hi))
+        return self._cache
+
+
+class ConditionMonitor:
+    """One sensor's detection of cloud, the Moon and the Sun, trails and seeing."""
+
+    def __init__(self, camera, options):
+        from shipstar.extract._artifacts import PersistentPixels
+        from shipstar.pipeline._skylight import BodyPredictor
+
+        self.camera = camera
+        self.options = options
+        self.bodies = BodyPredictor(camera)
+        self.persistent = PersistentPixels()
+        self.noise_floor = NoiseFloor()
+        self.discs: tuple = ()
+        #: The last frame: detections dropped per cause, and the positions kept.
+        self.last: dict = {}
+
+    # -- before and after extraction ----------------------------------------------------
+    def mask(self, image, frame, site, prior, extrapolated: bool = True):
+        """``image`` with the Moon's and the Sun's discs masked (``self.discs``); a prior
+        that is not ``extrapolated`` (one solved frame only) widens the masks by the
+        tracking gate (``PipelineOptions.prior_error_deg``), else by 3 px."""
+        from shipstar.pipeline._skylight import body_discs_or_none, mask_bodies
+        from shipstar.units import DEG2RAD
+
+        cam = self.camera
+        extra = 3.0 if extrapolated else self.options.prior_error_deg * DEG2RAD / (cam.pixel_mm / cam.f_mm)
+        self.discs = body_discs_or_none(self.bodies, frame, site, prior, extra)
+        return mask_bodies(image, self.discs)
+
+    def keep(self, image, extraction, prior=None) -> np.ndarray:
+        """``(N,)`` bool: the extraction's detections that go to identification; ``prior``:
+        the frame's predicted J2000 attitude (persistent pixels are only found with it)."""
+        from shipstar.extract._artifacts import trail_mask
+        from shipstar.pipeline._skylight import in_discs
+
+        ex = extraction
+        body = in_discs(ex.xy_px, self.discs)
+        trail = trail_mask(image, ex) & ~body
+        persistent = self.persistent.update(ex.xy_px, prior, self._displacement_px) & ~body & ~trail
+        keep = ~(body | trail | persistent)
+        self.last = {"n_extracted": len(ex), "n_in_body_mask": int(np.count_nonzero(body)),
+                     "n_trail": int(np.count_nonzero(trail)), "n_persistent": int(np.count_nonzero(persistent)),
+                     "bodies": [d.name for d in self.discs], "xy_kept_px": ex.xy_px[keep],
+                     "xy_rejected_px": ex.xy_px[~keep]}
+        return keep
+
+    def floor_px(self) -> float:
+        """Noise floor for the next frame (px): the estimate, at least the options' floor."""
+        f = self.noise_floor.estimate_px()
+        base = self.options.centroid_floor_px
+        return base if not math.isfinite(f) else max(base, f)
+
+    # -- after the frame -----------------------------------------------------------------
+    def reason(self, reason: str, n_detected: int, database, prior) -> str:
+        """The reason of a lost frame: the Moon's or the Sun's, clouded, or ``reason``."""
+        if self.discs:
+            return MOON_REASON if any(d.name == "moon" for d in self.discs) else SUN_REASON
+        if n_detected < CLOUDED_FRACTION * expected_stars(database, self.camera, prior):
+            return CLOUDED_REASON
+        return reason
+
+    def add_solved(self, fr, floor_used_px: float) -> None:
+        """Feed a solved frame's inlier residuals to the noise-floor estimate."""
+        h, inputs = fr.horizontal, fr.solve_inputs
+        if inputs is None or inputs.weights is None or not fr.solved:
+            return
+        cam = self.camera
+        keep = np.asarray(h.inliers)
+        u = h.w_sensor[keep] @ np.asarray(h.C_hor_from_sensor).T
+        r_px = np.linalg.norm(np.cross(u, h.v_hor[keep]), axis=1) / (cam.pixel_mm / cam.f_mm)
+        cr2 = 1.0 / np.asarray(inputs.weights, float)[keep] - floor_used_px ** 2
+        good = cr2 < 0.98                                  # unknown Cramer-Rao sigma (1 px): not used
+        self.noise_floor.add(r_px[good] ** 2, np.maximum(cr2[good], 0.0))
+
+
+    def _displacement_px(self, C_then, C_now, xy_px) -> np.ndarray:
+        """How far (px) a star now at ``xy_px`` was from there with the attitude ``C_then``."""
+        cam = self.camera
+        w = cam.unproject(xy_px)
+        then = cam.project(w @ (np.asarray(C_now).T @ np.asarray(C_then)))
+        return np.hypot(*(then - xy_px).T)

@@ -1,0 +1,424 @@
+"""Clock offsets and hull flexure, estimated from the sensors' own disagreement (issue 14).
+
+At each epoch where the reference sensor (``--reference``) and another sensor ``B`` both
+solved, the engine carries ``B``'s deck attitude to the epoch time and the two deck
+attitudes should agree.  They do not when
+
+- ``B``'s clock is off: its exposures really happen ``delta`` later than its headers say
+  (``delta`` = true exposure time minus header time, s), so its frame is carried from the
+  wrong time and its deck attitude is the deck's at ``t + delta``:
+  ``C_B = C(t) exp([omega delta] x)``, ``omega`` the deck's angular velocity (deck axes);
+- ``B``'s mount has turned relative to the reference mount by the small rotation
+  ``phi`` (deck axes bow / up / starboard) beyond what the installation files give: the
+  simulator's ``C_deck_from_sensor(t) = Exp([phi] x) C_deck_from_sensor`` gives
+  ``C_B = C(t) Exp([phi] x)``.
+
+So the disagreement ``d = log(C_ref^T C_B)`` (deck axes) is, to first order,
+
+    d_k = phi(t_k) + omega_k delta + e_k,     phi(t) = s + G a(t)
+
+with ``s`` (3) the static (slowly drifting) rotation of the mount, ``a = (roll, pitch)``
+(deg) the deck's roll and pitch from the reference sensor (the wave-period part of the
+flexure: the hull bends with the wave loads, whose rotation follows the ship's roll and
+pitch angles) and ``G`` (3 x 2) its gains, and ``e_k`` the two sensors' attitude errors
+(their covariances about the deck axes plus :data:`MODEL_SIGMA_ARCSEC` each, as in the
+integrity check).  Angle and rate of a sinusoidal roll are in quadrature, so the clock
+term and the wave flexure separate; a flexure in phase with the deck's *rate* would be
+taken for a clock offset on that axis (the three axes' rates have different periods, so
+one ``delta`` must fit all three).
+
+The 10 parameters ``(s, G, delta)`` are a running weighted least-squares solution
+(normal equations accumulated epoch by epoch, causal, forgetting with the time constant
+:data:`MEMORY_S` so a thermal drift is followed; an epoch whose disagreement lies beyond
+the chi-square gate of the prediction is not used).  The formal covariance is scaled by
+the residuals' chi2 per degree of freedom when above 1.
+
+What is applied (the rules):
+
+- **clock**: once :data:`MIN_EPOCHS` epochs are in and ``sigma <= MAX_APPLY_SIGMA_S`` and
+  ``|delta| > ENTER_SIGMAS sigma`` (5: the running estimate is looked at every epoch, so
+  3 sigma would be crossed by chance in a long night), ``B``'s frame times are shifted by
+  ``delta`` (the engine's pairing, motion window and carry use ``header time + delta``);
+  it stays applied while ``|delta| > STAY_SIGMAS sigma`` (3);
+- **flexure**: once :data:`MIN_EPOCHS` epochs are in and the 9 flexure parameters differ
+  from 0 beyond the chi-square quantile at 1e-6 (stay: 1e-2), ``B``'s installation in the
+  epoch's fusion (seed rule, joint solution, integrity) is ``Exp([phi_k] x) C_deck_from_sensor``
+  with ``phi_k = s + G a_k`` from the epochs before (a_k: this epoch's reference roll and
+  pitch).  The joint attitude then refers to the reference sensor's mount.
+
+Without a clock offset or flexure nothing is applied (the rows are those of a rigid deck).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from shipstar.units import ASEC2RAD, RAD2ASEC, RAD2DEG
+
+__all__ = ["MountEstimator", "MountsSnapshot", "MONITOR_COLUMNS", "MEMORY_S", "MIN_EPOCHS"]
+
+#: Forgetting time constant of the running least squares (s): a thermal drift of 10'' a
+#: day moves by < 0.1'' within it; the clock offset's memory is 6000 epochs.
+MEMORY_S = 600.0
+#: Spread (1 sigma) of the deck's roll or pitch below which no wave gain is fitted on it (deg):
+#: 180'', 50 times the weakest single-sensor roll noise, so that noise biases a gain by < 0.1 %.
+MIN_WAVE_STD_DEG = 0.05
+#: Epochs before anything is applied (3 s at 10 epochs/s: most of half a roll period).
+MIN_EPOCHS = 30
+#: Epochs before the monitor gives numbers (10 parameters).
+MIN_MONITOR_EPOCHS = 12
+#: Added per sensor and axis to the formal covariance (arcsec), as in the integrity check.
+MODEL_SIGMA_ARCSEC = 1.0
+#: Clock application: sigmas to enter and to stay applied; the largest sigma applied (s).
+ENTER_SIGMAS, STAY_SIGMAS = 5.0, 3.0
+MAX_APPLY_SIGMA_S = 5e-4
+#: Flexure application: false-alarm probabilities to enter / to stay (9 dof).
+ENTER_P, STAY_P = 1e-6, 1e-2
+#: An epoch whose disagreement's chi2 (3 dof) against the prediction exceeds this is not used.
+GATE_CHI2 = 30.0
+
+MONITOR_COLUMNS = ("time_utc", "sensor", "rot_bow_arcsec", "rot_up_arcsec", "rot_starboard_arcsec",
+                   "sigma_bow_arcsec", "sigma_up_arcsec", "sigma_starboard_arcsec")
+_AXES = ("bow", "up", "starboard")
+_NP = 10                     # s (3), G (3 x 2, column-major: roll then pitch), delta (ms)
+
+
+def _num(x):
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+class _FlexedInstallation:
+    """An installation with its mount turned: ``C_deck_from_sensor = Exp([phi] x) C``;
+    every other attribute is the original's."""
+
+    def __init__(self, installation, C_deck_from_sensor):
+        self._inst = installation
+        self.C_deck_from_sensor = C_deck_from_sensor
+
+    def __getattr__(self, name):
+        return getattr(self._inst, name)
+
+
+@dataclass(frozen=True, eq=False)
+class MountsSnapshot:
+    """The estimates after one epoch (``Epoch.mounts``).
+
+    Attributes
+    ----------
+    monitor : tuple of (sensor, rot_arcsec (3,), sigma_arcsec (3,))
+        The smoothed relative attitude of each non-reference mount at the epoch (deck
+        axes bow / up / starboard; NaN before :data:`MIN_MONITOR_EPOCHS` epochs).
+    time_offsets_s : dict
+        ``{sensor: {"offset_s", "sigma_s", "applied"}}`` (the summary's ``time_offsets_s``).
+    flexure : dict
+        ``{sensor: {...}}`` (the summary's ``flexure``).
+    """
+
+    monitor: tuple
+    time_offsets_s: dict
+    flexure: dict
+
+
+def _design(a_deg, omega_asec_per_ms) -> np.ndarray:
+    """(3, 10) regressors of one epoch: s, G (roll, pitch), delta (ms)."""
+    X = np.zeros((3, _NP))
+    X[:, 0:3] = np.eye(3)
+    X[:, 3:6] = a_deg[0] * np.eye(3)
+    X[:, 6:9] = a_deg[1] * np.eye(3)
+    X[:, 9] = omega_asec_per_ms
+    return X
+
+
+class _Track:
+    """Running weighted least squares of one non-reference sensor."""
+
+    def __init__(self):
+        self.N = np.zeros((_NP, _NP))
+        self.b = np.zeros(_NP)
+        self.yy = 0.0
+        self.n_eff = 0.0                  # forgetting-weighted epochs
+        self.n = 0                        # epochs used
+        self.n_gated = 0
+        self.t_last = None
+        self.a_sum = np.zeros(2)          # forgetting-weighted moments of the angles (deg)
+        self.aa_sum = np.zeros((2, 2))
+        self.theta = np.full(_NP, math.nan)
+        self.cov = np.full((_NP, _NP), math.nan)
+        self.clock_applied = False
+        self.flex_applied = False
+
+    def active(self) -> np.ndarray:
+        """The parameters estimated: the wave gains of an angle only while it spreads by more
+        than :data:`MIN_WAVE_STD_DEG` (the angles are the reference sensor's own measurements:
+        in dock their spread is mostly that sensor's noise, which is also in the
+        disagreement, and a gain fitted on it is spurious -- errors in the variables)."""
+        keep = np.ones(_NP, bool)
+        if self.n_eff > 0:
+            m = self.a_sum / self.n_eff
+            var = np.diag(self.aa_sum / self.n_eff) - m * m
+        else:
+            var = np.zeros(2)
+        for j, cols in enumerate((slice(3, 6), slice(6, 9))):
+            if not var[j] > MIN_WAVE_STD_DEG ** 2:
+                keep[cols] = False
+        return keep
+
+    def solve(self) -> None:
+        if self.n < MIN_MONITOR_EPOCHS:
+            return
+        keep = self.active()
+        N, b = self.N[np.ix_(keep, keep)], self.b[keep]
+        ridge = 1e-9 * max(1.0, float(np.trace(N))) * np.eye(len(b))
+        try:
+            cov_k = np.linalg.inv(N + ridge)
+        except np.linalg.LinAlgError:
+            return
+        theta_k = cov_k @ b
+        chi2 = max(0.0, self.yy - 2.0 * theta_k @ b + theta_k @ N @ theta_k)
+        dof = 3.0 * self.n_eff - len(b)
+        scale = max(1.0, chi2 / dof) if dof > 0 else 1.0
+        theta, cov = np.zeros(_NP), np.zeros((_NP, _NP))
+        theta[keep] = theta_k
+        cov[np.ix_(keep, keep)] = cov_k * scale
+        self.theta, self.cov = theta, cov
+
+    def add(self, t_s, y_asec, info, a_deg, omega) -> None:
+        if self.t_last is not None:
+            lam = math.exp(-max(0.0, t_s - self.t_last) / MEMORY_S)
+            self.N *= lam
+            self.b *= lam
+            self.yy *= lam
+            self.n_eff *= lam
+            self.a_sum *= lam
+            self.aa_sum *= lam
+        self.t_last = t_s
+        X = _design(a_deg, omega)
+        if self.n >= MIN_MONITOR_EPOCHS and np.all(np.isfinite(self.theta)):
+            v = y_asec - X @ self.theta
+            S = np.linalg.inv(info) + X @ self.cov @ X.T
+            if float(v @ np.linalg.solve(S, v)) > GATE_CHI2:
+                self.n_gated += 1
+                return
+        self.N += X.T @ info @ X
+        self.b += X.T @ info @ y_asec
+        self.yy += float(y_asec @ info @ y_asec)
+        self.n_eff += 1.0
+        self.n += 1
+        self.a_sum += a_deg
+        self.aa_sum += np.outer(a_deg, a_deg)
+        self.solve()
+        self._rules()
+
+    # -- what is applied ----------------------------------------------------------------
+    def clock(self):
+        """(offset_s, sigma_s)."""
+        return self.theta[9] * 1e-3, math.sqrt(self.cov[9, 9]) * 1e-3 if np.isfinite(self.cov[9, 9]) else math.nan
+
+    def _rules(self) -> None:
+        from shipstar.pipeline._integrity import chi2_limit
+
+        if self.n < MIN_EPOCHS or not np.all(np.isfinite(self.theta)):
+            return
+        off, sig = self.clock()
+        k = STAY_SIGMAS if self.clock_applied else ENTER_SIGMAS
+        self.clock_applied = bool(sig <= MAX_APPLY_SIGMA_S and abs(off) > k * sig)
+        keep = self.active()[:9]
+        f, C = self.theta[:9][keep], self.cov[:9, :9][np.ix_(keep, keep)]
+        try:
+            chi2 = float(f @ np.linalg.solve(C, f))
+        except np.linalg.LinAlgError:
+            return
+        self.flex_applied = chi2 > chi2_limit(int(keep.sum()), STAY_P if self.flex_applied else ENTER_P)
+
+    def applied_shift_s(self) -> float:
+        return float(self.clock()[0]) if self.clock_applied else 0.0
+
+    def phi(self, a_deg):
+        """(rot (3,), sigma (3,)) arcsec of the flexure model at roll/pitch ``a_deg``."""
+        if not np.all(np.isfinite(self.theta)):
+            return np.full(3, math.nan), np.full(3, math.nan)
+        X = _design(a_deg, np.zeros(3))[:, :9]
+        rot = X @ self.theta[:9]
+        sig = np.sqrt(np.maximum(0.0, np.einsum("ij,jk,ik->i", X, self.cov[:9, :9], X)))
+        return rot, sig
+
+    def a_mean(self):
+        return self.a_sum / self.n_eff if self.n_eff > 0 else np.zeros(2)
+
+    def flexure_block(self, sem_arcsec) -> dict:
+        """The summary's flexure entry of this sensor."""
+        rot, sig = self.phi(self.a_mean())
+        out = {"n_epochs": self.n, "n_gated": self.n_gated, "applied": self.flex_applied}
+        out["static_arcsec"] = {ax: _num(r) for ax, r in zip(_AXES, rot)}
+        out["static_sigma_arcsec"] = {ax: _num(s) for ax, s in zip(_AXES, sig)}
+        amp, amp_sig = np.full(3, math.nan), np.full(3, math.nan)
+        if self.n_eff > 0 and np.all(np.isfinite(self.theta)):
+            m = self.a_mean()
+            S = self.aa_sum / self.n_eff - np.outer(m, m)             # covariance of roll, pitch
+            for i in range(3):
+                idx = [3 + i, 6 + i]
+                g = self.theta[idx]
+                var = float(g @ S @ g)
+                amp[i] = math.sqrt(2.0 * max(var, 0.0))                # sinusoid: amplitude = sqrt(2) RMS
+                if var > 0:
+                    grad = math.sqrt(2.0) * (S @ g) / math.sqrt(var)
+                    amp_sig[i] = math.sqrt(max(0.0, float(grad @ self.cov[np.ix_(idx, idx)] @ grad)))
+        out["wave_amplitude_arcsec"] = {ax: _num(x) for ax, x in zip(_AXES, amp)}
+        out["wave_amplitude_sigma_arcsec"] = {ax: _num(x) for ax, x in zip(_AXES, amp_sig)}
+        # the static part against the dock calibration: the installation files' sems of both
+        # sensors (the calibration's own uncertainty) and this estimate's sigma
+        tol = math.sqrt(sum(float(x) ** 2 for x in sem_arcsec if math.isfinite(float(x))))
+        out["dock_sem_arcsec"] = _num(tol)
+        comb = np.sqrt(sig ** 2 + tol ** 2)
+        out["installation_drift"] = bool(np.all(np.isfinite(rot)) and np.any(np.abs(rot) > 3.0 * comb))
+        return out
+
+
+def _sems(installation) -> list:
+    return [float(s) for s in getattr(installation, "sem_arcsec", ()) if math.isfinite(float(s))]
+
+
+class MountEstimator:
+    """The engine's estimator of clock offsets and mount flexure (module docstring).
+
+    Parameters
+    ----------
+    configs : sequence of SensorConfig
+    reference : int
+    """
+
+    def __init__(self, configs, reference: int):
+        self.configs = tuple(configs)
+        self.reference = int(reference)
+        self.others = [k for k in range(len(self.configs)) if k != self.reference]
+        self._tracks = {k: _Track() for k in self.others}
+
+    def shift_s(self, sensor: int) -> float:
+        """The shift applied to this sensor's frame times now (s)."""
+        tr = self._tracks.get(sensor)
+        return tr.applied_shift_s() if tr is not None else 0.0
+
+    def configs_for(self, fr_ref):
+        """The configs of the next epoch (the flexed installations where applied)."""
+        if fr_ref is None or not fr_ref.ship.solved:
+            return self.configs
+        a = self._angles(fr_ref)
+        out = list(self.configs)
+        from dataclasses import replace
+
+        from shipstar.pipeline._motion import expm_rotvec
+
+        for k, tr in self._tracks.items():
+            c = self.configs[k]
+            if tr.flex_applied and c.installation is not None:
+                rot, _ = tr.phi(a)
+                C = expm_rotvec(rot * ASEC2RAD) @ c.installation.C_deck_from_sensor
+                out[k] = replace(c, installation=_FlexedInstallation(c.installation, C))
+        return tuple(out)
+
+    @staticmethod
+    def _angles(fr_ref) -> np.ndarray:
+        return np.array([fr_ref.ship.roll_rad, fr_ref.ship.pitch_rad]) * RAD2DEG
+
+    def update(self, t_s: float, epoch, paired, shifts_s, configs_used, motion) -> MountsSnapshot:
+        """Add one fused epoch; ``shifts_s``: the time shift applied to each paired frame,
+        ``configs_used``: the configs the epoch was fused with, ``motion``: the deck's motion
+        fit around the epoch (None: not known)."""
+        from shipstar.pipeline._motion import rotvecs
+
+        ref = self.reference
+        fr_ref, att_ref = paired[ref], epoch.single[ref]
+        ok_ref = fr_ref is not None and att_ref.solved and fr_ref.horizontal is not None and motion is not None
+        monitor = []
+        a = self._angles(fr_ref) if fr_ref is not None and fr_ref.ship.solved else None
+        for k, tr in self._tracks.items():
+            fr, att, c = paired[k], epoch.single[k], configs_used[k]
+            if ok_ref and fr is not None and att.solved and fr.horizontal is not None and c.installation is not None:
+                d = rotvecs(att_ref.C_hor_from_deck.T @ att.C_hor_from_deck)[0] * RAD2ASEC
+                C_ds = c.installation.C_deck_from_sensor
+                C_rs = configs_used[ref].installation.C_deck_from_sensor
+                P = (C_ds @ np.asarray(fr.horizontal.covariance_rad2, float) @ C_ds.T
+                     + C_rs @ np.asarray(fr_ref.horizontal.covariance_rad2, float) @ C_rs.T) * RAD2ASEC ** 2
+                P = 0.5 * (P + P.T) + 2.0 * MODEL_SIGMA_ARCSEC ** 2 * np.eye(3)
+                omega = motion.omega_at(t_s) * RAD2ASEC * 1e-3                    # arcsec per ms
+                applied_phi = np.zeros(3)
+                if c.installation is not self.configs[k].installation:         # flexed: C_eff = Exp(phi) C
+                    applied_phi = rotvecs(C_ds @ self.configs[k].installation.C_deck_from_sensor.T)[0] * RAD2ASEC
+                y = d + applied_phi + omega * (shifts_s[k] * 1e3)
+                if np.all(np.isfinite(y)) and np.all(np.isfinite(P)):
+                    tr.add(t_s, y, np.linalg.inv(P), a, omega)
+            if a is not None:
+                rot, sig = tr.phi(a) if tr.n >= MIN_MONITOR_EPOCHS else (np.full(3, math.nan),) * 2
+            else:
+                rot, sig = np.full(3, math.nan), np.full(3, math.nan)
+            monitor.append((self.configs[k].name, rot, sig))
+        return MountsSnapshot(tuple(monitor), self.time_offsets(), self.flexure())
+
+    def time_offsets(self) -> dict:
+        out = {}
+        for k, tr in self._tracks.items():
+            off, sig = tr.clock()
+            out[self.configs[k].name] = {"offset_s": _num(off), "sigma_s": _num(sig), "applied": tr.clock_applied}
+        return out
+
+    def flexure(self) -> dict:
+        out = {}
+        ref = self.configs[self.reference]
+        for k, tr in self._tracks.items():
+            c = self.configs[k]
+            sems = _sems(getattr(ref, "installation", None)) + _sems(c.installation)
+            out[c.name] = tr.flexure_block(sems)
+        return out
+
+
+def monitor_rows(epoch) -> list:
+    """The monitor CSV's rows (strings) of one epoch (none without estimates)."""
+    m = getattr(epoch, "mounts", None)
+    if m is None:
+        return []
+    rows = []
+    for name, rot, sig in m.monitor:
+        vals = [f"{x:.4f}" if math.isfinite(x) else "nan" for x in (*rot, *sig)]
+        rows.append([epoch.utc_iso, name, *vals])
+    return rows
+
+
+class MonitorCsvWriter:
+    """``measure --monitor CSV``: one row per epoch and non-reference sensor
+    (:data:`MONITOR_COLUMNS`), written as the epochs come.
+
+    ``keep_before_s`` (a resumed run): the rows of an existing file before this time (s
+    since ``start_utc_jd``) are kept and the new rows appended after them.
+    """
+
+    def __init__(self, path, *, keep_before_s=None, start_utc_jd=None):
+        from pathlib import Path
+
+        self.path = Path(path)
+        kept = []
+        if keep_before_s is not None and self.path.exists():
+            from shipstar.sky.time import iso_from_utc_jd
+
+            cut = iso_from_utc_jd(start_utc_jd[0], start_utc_jd[1] + keep_before_s / 86400.0, 6)
+            lines = self.path.read_text(encoding="utf-8").splitlines()[1:]
+            kept = [line for line in lines if line.split(",", 1)[0] < cut]
+        self._f = open(self.path, "w", encoding="utf-8", newline="")
+        self._f.write(",".join(MONITOR_COLUMNS) + "\n" + "".join(line + "\n" for line in kept))
+
+    def write(self, emission) -> None:
+        e = emission.epoch
+        if e is None:
+            return
+        for row in monitor_rows(e):
+            self._f.write(",".join(row) + "\n")
+
+    def flush(self) -> None:
+        self._f.flush()
+
+    def close(self) -> None:
+        if not self._f.closed:
+            self._f.close()

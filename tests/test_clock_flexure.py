@@ -1,0 +1,138 @@
+"""Clock offsets and mount flexure estimated from the data (issue 14 item 3; pipeline._mounts).
+
+Centroid-level sea sessions (8 s, roll 5 deg / 8 s) with the shipped ``clock`` and
+``flexure`` condition files, whose true values the simulator gives.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from shipstar.calibrate.installation import Installation
+from shipstar.pipeline import PipelineOptions, SensorConfig, process_session, session_summary
+from shipstar.pipeline._mounts import MONITOR_COLUMNS, MIN_EPOCHS, MonitorCsvWriter
+from shipstar.pipeline._stats import attitude_errors_arcsec, method_series
+from shipstar.simulate._conditions import apply_conditions, flexure_rotvec_rad, load_conditions
+from shipstar.simulate._session import sea_session, simulate_centroids
+from shipstar.units import RAD2ASEC
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from bench_ship_attitude import frames_of, tables  # noqa: E402
+
+DURATION_S = 8.0
+
+
+def _run(conditions, reference=None):
+    spec = sea_session(duration_s=DURATION_S)
+    if conditions is not None:
+        spec = apply_conditions(spec, load_conditions(conditions))
+    cf = simulate_centroids(spec)
+    track, weather, truth = tables(spec)
+    configs = [SensorConfig(s.name, s.camera, Installation.from_matrix(s.name, s.camera.name, s.C_deck_from_sensor))
+               for s in spec.sensors]
+    res = process_session(configs, [frames_of(cf, s.name) for s in spec.sensors], track, weather,
+                          PipelineOptions(), reference=reference)
+    return spec, res, truth
+
+
+@pytest.fixture(scope="module")
+def clock():
+    return _run("clock")
+
+
+@pytest.fixture(scope="module")
+def flexure():
+    return _run("flexure")
+
+
+@pytest.fixture(scope="module")
+def clean():
+    return _run(None)
+
+
+def test_clock_offset_is_found_with_its_sign_and_applied(clock):
+    spec, res, truth = clock
+    s = session_summary(res, truth)
+    assert list(s["time_offsets_s"]) == ["A2"]
+    a2 = s["time_offsets_s"]["A2"]
+    assert set(a2) == {"offset_s", "sigma_s", "applied"}
+    assert a2["offset_s"] == pytest.approx(0.003, abs=3e-4)            # true exposure time - header time
+    assert 0 < a2["sigma_s"] < 2e-4 and a2["applied"] is True
+    assert abs(a2["offset_s"] - 0.003) < 4 * a2["sigma_s"] + 5e-5      # jitter 50 us
+    assert s["flexure"]["A2"]["applied"] is False                      # no flexure in clock.toml
+    # applied: the joint solution's error falls from tens of arcsec to the noise
+    err = attitude_errors_arcsec(method_series(res, "joint"), truth)
+    first = [k for k, e in enumerate(res.epochs) if e.mounts.time_offsets_s["A2"]["applied"]][0]
+    assert MIN_EPOCHS <= first < 45
+    assert np.nanmax(np.abs(err[:first])) > 10.0
+    assert np.all(np.sqrt(np.nanmean(err[50:] ** 2, axis=0)) < 1.0)        # once sigma < 0.15 ms
+
+
+def test_clock_offset_relative_to_another_reference(clock):
+    spec, _, truth = clock
+    _, res, _ = _run("clock", reference="A2")
+    a1 = session_summary(res, truth)["time_offsets_s"]["A1"]
+    assert a1["offset_s"] == pytest.approx(-0.003, abs=3e-4)           # A1 is 3 ms early against A2
+
+
+def test_flexure_static_and_wave_parts_against_the_truth(flexure):
+    spec, res, truth = flexure
+    s = session_summary(res, truth)
+    f = s["flexure"]["A2"]
+    assert f["applied"] is True and f["installation_drift"] is True
+    assert f["wave_amplitude_arcsec"]["bow"] == pytest.approx(20.0, rel=0.2)
+    assert f["wave_amplitude_arcsec"]["up"] < 3.0 and f["wave_amplitude_arcsec"]["starboard"] < 3.0
+    # the static part: static + thermal + ramp over the session (the wave part averages out)
+    t = np.array([e.t_s for e in res.epochs])
+    phi = np.array([flexure_rotvec_rad(spec, "A2", x) for x in t]) * RAD2ASEC
+    wave = np.array([20.0, 0.0, 0.0])[None, :] * np.sin(2 * math.pi * t / 8.0)[:, None]
+    static_true = (phi - wave).mean(axis=0)
+    for k, ax in enumerate(("bow", "up", "starboard")):
+        assert abs(f["static_arcsec"][ax] - static_true[k]) < 4 * f["static_sigma_arcsec"][ax] + 0.5
+    assert s["time_offsets_s"]["A2"]["applied"] is False
+    assert abs(s["time_offsets_s"]["A2"]["offset_s"]) < 5 * s["time_offsets_s"]["A2"]["sigma_s"]
+    # the monitor (smoothed, causal) follows the true rotation once estimated
+    late = [(e, p) for e, p in zip(res.epochs, phi) if e.index >= 40]
+    d = np.array([e.mounts.monitor[0][1] - p for e, p in late])
+    assert np.all(np.sqrt(np.mean(d ** 2, axis=0)) < 2.0)
+    # and the joint solution, with the flexure applied, refers to A1's mount: no 20'' wave left
+    err = attitude_errors_arcsec(method_series(res, "joint"), truth)
+    assert np.all(np.sqrt(np.nanmean(err[60:] ** 2, axis=0)) < 1.5)        # the issue's target
+
+
+def test_nothing_is_applied_without_conditions(clean):
+    _, res, truth = clean
+    for e in res.epochs:
+        assert not e.mounts.time_offsets_s["A2"]["applied"] and not e.mounts.flexure["A2"]["applied"]
+    s = session_summary(res, truth)
+    assert abs(s["time_offsets_s"]["A2"]["offset_s"]) < 5 * s["time_offsets_s"]["A2"]["sigma_s"]
+    assert all(abs(v) < 2.0 for v in s["flexure"]["A2"]["wave_amplitude_arcsec"].values())
+    assert s["flexure"]["A2"]["installation_drift"] is False
+    json.dumps(s, allow_nan=False)
+
+
+def test_monitor_csv_columns_and_rows(flexure, tmp_path):
+    _, res, _ = flexure
+    path = tmp_path / "monitor.csv"
+    w = MonitorCsvWriter(path)
+    for e in res.emissions:
+        w.write(e)
+    w.close()
+    rows = list(csv.DictReader(io.StringIO(path.read_text())))
+    assert tuple(rows[0]) == MONITOR_COLUMNS
+    assert len(rows) == len(res.epochs) and {r["sensor"] for r in rows} == {"A2"}
+    assert rows[0]["rot_bow_arcsec"] == "nan" and rows[0]["time_utc"] == res.epochs[0].utc_iso
+    late = rows[-1]
+    assert float(late["sigma_bow_arcsec"]) < 2.0 and abs(float(late["rot_bow_arcsec"])) < 30.0
+    # a resumed run keeps the rows before its resume point
+    w = MonitorCsvWriter(path, keep_before_s=res.epochs[10].t_s, start_utc_jd=res.start_utc_jd)
+    w.close()
+    assert len(path.read_text().splitlines()) == 1 + 10

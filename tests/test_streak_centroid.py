@@ -1,0 +1,82 @@
+"""The centroid of an accelerating streak (docs/extraction.md, *Accelerating streaks*):
+where the pipeline's extraction puts it, and the streak correction's model of it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from shipstar.camera import load_camera
+from shipstar.extract import extract_stars
+from shipstar.pipeline._exposure import StreakModel, exposure_mean_offset, streak_along_factor
+from shipstar.simulate._motion import streak_sources
+from shipstar.simulate._render import render_frame, star_signal_e
+
+
+def test_along_factor_limits_and_continuity():
+    """k = 1 for a point (the centroid), its series meets the closed form at L = 0.5 s2, and
+    long streaks tend to the ends' midpoint (3 x the time average) less the PSF's pull."""
+    s2 = np.sqrt(2 * (0.8 ** 2 + 1 / 12))
+    assert streak_along_factor(0.0, 0.8) == 1.0
+    eps = 1e-6
+    lo, hi = streak_along_factor([0.5 * s2 - eps, 0.5 * s2 + eps], 0.8)
+    assert abs(lo - hi) < 1e-5
+    L = np.array([200.0, 400.0])
+    np.testing.assert_allclose(streak_along_factor(L, 0.8), 3 - 6 * np.sqrt(2 * np.pi) * s2 / L, atol=2e-3)
+    k = streak_along_factor(np.linspace(0.1, 40, 400), 0.8)
+    assert np.all(np.isfinite(k)) and 0.6 < k.min() < 0.62 and k.max() < 3
+
+
+@pytest.mark.parametrize("length_px", [6.0, 20.0])
+def test_rendered_accelerating_streaks_are_fitted_where_the_model_says(length_px):
+    """64 bright A1 streaks rendered along x(t) = x0 + v t + a t^2 / 2 (60 ms, a T^2 / 24 =
+    0.1 px along, the simulator's piecewise renderer), extracted as the pipeline does: the
+    fitted centre lies k(L) x 0.1 px beyond x0 along the streak (k = 0.95 / 2.18, not the
+    time average's 1), and at the time average across it (curvature)."""
+    cam = load_camera("A1").replace(exposure_s=0.06)
+    T, n, d24 = 0.06, 16, 0.1
+    tau = np.linspace(-T / 2, T / 2, 2 * n + 1)
+    e = np.array([np.cos(0.35), np.sin(0.35)])
+    p = np.array([-e[1], e[0]])
+    g = np.arange(8) * 110 + 130.37
+    xy0 = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    a = 24 * d24 / T ** 2
+
+    def offsets(a_along, a_across, seed):
+        s = length_px / T * tau + a_along * tau ** 2 / 2
+        path = xy0[:, None, :] + s[None, :, None] * e + (a_across * tau ** 2 / 2)[None, :, None] * p
+        xy, sig, sm = streak_sources(path, star_signal_e(cam, np.full(len(xy0), 5.0)))
+        img = render_frame(cam, xy, sig, np.random.default_rng(seed), smear_px=sm, hot_pixel_fraction=0)
+        ex = extract_stars(img, psf_sigma_px=cam.psf_sigma_px, gain_e_per_adu=cam.gain_e_per_adu)
+        d = np.linalg.norm(ex.xy_px[:, None, :] - xy0[None], axis=2)
+        dd = ex.xy_px[np.argmin(d, axis=0)] - xy0
+        assert np.all(np.linalg.norm(dd, axis=1) < 1.0)
+        return np.c_[dd @ e, dd @ p].mean(axis=0)
+
+    k_model = float(streak_along_factor(length_px, cam.psf_sigma_px))
+    k_along = (offsets(a, 0, 1)[0] - offsets(-a, 0, 2)[0]) / (2 * d24)
+    k_across = (offsets(0, a, 3)[1] - offsets(0, -a, 4)[1]) / (2 * d24)
+    assert abs(k_along - k_model) < 0.3, (k_along, k_model)
+    assert abs(k_along - 1.0) > 0.5 * abs(k_model - 1.0) or abs(k_model - 1.0) < 0.1
+    assert abs(k_across - 1.0) < 0.2, k_across
+
+
+def test_model_scales_only_the_along_streak_part():
+    """In direction space: with the extraction's model the offset's component along each
+    star's motion (-omega x w) is k(L) times the time average's; across it is unchanged."""
+    cam = load_camera("A1")
+    T, pixel_rad = 0.06, cam.pixel_mm / cam.f_mm
+    w = np.array([[0.01, 0.02, 1.0], [-0.03, 0.01, 1.0], [0.0, 0.0, 1.0]])
+    w /= np.linalg.norm(w, axis=1)[:, None]
+    omega = np.radians([2.0, -1.0, 0.5])
+    alpha = np.radians([-1.0, 3.0, 0.2])
+    plain = exposure_mean_offset(w, omega, alpha, T)
+    fitted = exposure_mean_offset(w, omega, alpha, T, StreakModel(cam.psf_sigma_px, pixel_rad))
+    vel = np.cross(w, omega)
+    speed = np.linalg.norm(vel, axis=1)
+    e = vel / speed[:, None]
+    k = streak_along_factor(speed * T / pixel_rad, cam.psf_sigma_px)
+    np.testing.assert_allclose(np.einsum("ij,ij->i", fitted, e), k * np.einsum("ij,ij->i", plain, e), rtol=1e-12)
+    np.testing.assert_allclose(fitted - np.einsum("ij,ij->i", fitted, e)[:, None] * e,
+                               plain - np.einsum("ij,ij->i", plain, e)[:, None] * e, atol=1e-18)
+    np.testing.assert_array_equal(exposure_mean_offset(w, omega, alpha, T, StreakModel()), plain)
