@@ -20,10 +20,13 @@ frames/s) and the receiver; run it when the machine is otherwise quiet (``uptime
 
 Run: ``python benchmarks/bench_live.py [--duration-s 60] [--workdir DIR] [--keep]``.
 
-``--console [--repeats N]``: instead, the operator console's cost (issue 17): ``live
---http`` with 0 and then 2 headless Chromium pages connected (Debian's chromium, driven
-over the DevTools pipe, :mod:`shipstar.live._cdp`), N alternated pairs of runs; prints the
-latency median / p99 of each and the difference in p99 (target: under 10 ms).
+``--console [--repeats N] [--window-s 5]``: instead, the operator console's cost (issue
+17): ``live --http`` with two headless Chromium pages (Debian's chromium, driven over the
+DevTools pipe, :mod:`shipstar.live._cdp`) that are on the console and off it
+(about:blank) in turns of 5 s during each replay, so that both states share the machine's
+load; each frame's latency is counted in the state at its appearance.  Prints the
+latency median / p99 with 0 and 2 browsers connected and the difference in p99 (target:
+under 10 ms).
 """
 
 from __future__ import annotations
@@ -115,9 +118,11 @@ def _joint_rms(rows, truth) -> np.ndarray:
     return np.sqrt(np.mean(err ** 2, axis=0)), len(err)
 
 
-def _live_latency(root: Path, n_browsers: int, tag: str) -> dict:
-    """One replay at 1x into ``live --http`` with ``n_browsers`` headless Chromium pages on
-    the console: the single rows' latency (frame appears -> row on UDP), in ms."""
+def _console_run(root: Path, tag: str, window_s: float) -> dict:
+    """One replay at 1x into ``live --http`` with two headless Chromium pages that are on
+    the console and off it (about:blank) in turns of ``window_s`` seconds, so that both
+    states see the same machine load; returns each single row's latency (frame appears ->
+    row on UDP, ms) with the state at the frame's appearance."""
     from shipstar.live._cdp import Browser
     from shipstar.live._replay import plan_replay, replay, session_sensor_dirs, session_tables
 
@@ -127,6 +132,7 @@ def _live_latency(root: Path, n_browsers: int, tag: str) -> dict:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
+    url = f"http://127.0.0.1:{port}/"
     rx = Receiver()
     rx.start()
     live = subprocess.Popen([sys.executable, "-m", "shipstar", "live", "--sensor", f"A1={incoming / 'A1'}",
@@ -136,30 +142,45 @@ def _live_latency(root: Path, n_browsers: int, tag: str) -> dict:
                              "--quiet"], cwd=root, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     lines: list = []
     threading.Thread(target=lambda: lines.extend(live.stderr), daemon=True).start()
-    browsers = []
+    browsers, states, updates = [], [], []        # states: (monotonic s from, n browsers on the console)
+    done = threading.Event()
+    cpu = {0: 0.0, 2: 0.0}
+
+    def toggle():
+        n = 0
+        while not done.is_set():
+            c0 = sum(_cpu_s(b.proc.pid) for b in browsers)
+            for b in browsers:
+                b.navigate(url if n else "about:blank")
+            states.append((time.monotonic(), n))
+            done.wait(window_s)
+            if n:
+                updates.append(sum(b.evaluate("window.shipstarConsole ? window.shipstarConsole.messages : 0") or 0
+                                   for b in browsers))
+            cpu[n] += sum(_cpu_s(b.proc.pid) for b in browsers) - c0
+            n = 2 - n
+
     try:
         while not any("watching" in ln for ln in lines):
             if live.poll() is not None:
                 raise RuntimeError("".join(lines))
             time.sleep(0.05)
-        for _ in range(n_browsers):
-            b = Browser(f"http://127.0.0.1:{port}/", width=1280, height=900)
-            b.wait_for("document.getElementById('conn').textContent === 'live'", timeout_s=60)
-            browsers.append(b)
-        time.sleep(3.0 if browsers else 0.0)               # the browsers' start-up settles
-        cpu0 = {"live": _cpu_s(live.pid), "browsers": sum(_cpu_s(b.proc.pid) for b in browsers)}
+        browsers = [Browser("about:blank", width=1280, height=900) for _ in range(2)]
+        time.sleep(2.0)                                     # the browsers' start-up settles
         appeared: dict = {}
         plan = plan_replay(session_sensor_dirs(root / "sea"), session_tables(root / "sea"))
+        toggler = threading.Thread(target=toggle, daemon=True)
+        toggler.start()
         replay(plan, incoming, speed=1.0, start_delay_s=0.5, handle_signals=False,
                on_frame=lambda sensor, name, t: appeared.__setitem__((sensor, name), t))
         end = time.monotonic() + 30.0
         while len([r for _, r in rx.rows if r["method"] == "single"]) < len(appeared) and time.monotonic() < end:
             time.sleep(0.1)
-        cpu = {"live": _cpu_s(live.pid) - cpu0["live"],
-               "browsers": sum(_cpu_s(b.proc.pid) for b in browsers) - cpu0["browsers"]}
-        messages = [b.evaluate("window.shipstarConsole.messages") for b in browsers]
+        done.set()
+        toggler.join(window_s + 10)
         errors = [e for b in browsers for e in b.errors]
     finally:
+        done.set()
         for b in browsers:
             b.close()
         live.send_signal(signal.SIGINT)
@@ -167,11 +188,15 @@ def _live_latency(root: Path, n_browsers: int, tag: str) -> dict:
         rx.stop.set()
         rx.join()
     summary = json.loads(out)
-    lat = [(t - appeared[(r["sensor"], r["frame"])]) * 1000 for t, r in rx.rows
-           if r["method"] == "single" and (r["sensor"], r["frame"]) in appeared]
+    lat = {0: [], 2: []}
+    for t, r in rx.rows:
+        key = (r["sensor"], r["frame"])
+        if r["method"] != "single" or key not in appeared:
+            continue
+        shown = [n for since, n in states if since <= appeared[key]]
+        lat[shown[-1] if shown else 0].append((t - appeared[key]) * 1000)
     skipped = sum(summary["sensors"][s]["skipped_behind"] for s in ("A1", "A2"))
-    return {"browsers": n_browsers, "lat": lat, "skipped": skipped, "messages": messages, "errors": errors,
-            "cpu": cpu}
+    return {"lat": lat, "skipped": skipped, "updates": updates, "errors": errors, "cpu": cpu}
 
 
 def _cpu_s(pid: int) -> float:
@@ -194,19 +219,20 @@ def _cpu_s(pid: int) -> float:
 
 
 def console_comparison(root: Path, args) -> int:
-    """``--console``: latency with 0 and 2 browsers on the operator console, alternated."""
+    """``--console``: latency with 0 and 2 browsers on the operator console, in turns."""
     runs = []
     for k in range(args.repeats):
-        for n in (0, 2):
-            r = _live_latency(root, n, f"{k}-{n}")
-            runs.append(r)
-            extra = (f", pages got {r['messages']} updates, browser errors {len(r['errors'])}" if n else "")
-            print(f"live --http, {n} browsers: {_q(r['lat'])}, skipped behind {r['skipped']}{extra}; CPU s during "
-                  f"the replay: live {r['cpu']['live']:.1f}, browsers {r['cpu']['browsers']:.1f}", flush=True)
-    agg = {n: np.concatenate([r["lat"] for r in runs if r["browsers"] == n]) for n in (0, 2)}
+        r = _console_run(root, str(k), args.window_s)
+        runs.append(r)
+        print(f"run {k + 1}: 0 browsers {_q(r['lat'][0])}\n       2 browsers {_q(r['lat'][2])}\n"
+              f"       skipped behind {r['skipped']}, browser CPU s on the console {r['cpu'][2]:.1f} / off it "
+              f"{r['cpu'][0]:.1f}, page updates per {args.window_s:g} s window {r['updates']}, "
+              f"browser errors {len(r['errors'])}", flush=True)
+    agg = {n: np.concatenate([r["lat"][n] for r in runs]) for n in (0, 2)}
     med = {n: float(np.median(v)) for n, v in agg.items()}
     p99 = {n: float(np.percentile(v, 99)) for n, v in agg.items()}
-    print(f"\n== operator console, {args.duration_s:g} s replayed at 1x x {args.repeats}, {os.cpu_count()} cores, "
+    print(f"\n== operator console: live --http, {args.duration_s:g} s replayed at 1x x {args.repeats}, two pages on "
+          f"the console and off it in turns of {args.window_s:g} s, {os.cpu_count()} cores, "
           f"load {os.getloadavg()[0]:.1f}")
     for n in (0, 2):
         print(f"{n} browsers: latency median {med[n]:.1f} ms, p99 {p99[n]:.1f} ms (n {len(agg[n])})")
@@ -222,9 +248,11 @@ def main() -> int:
     ap.add_argument("--workdir", type=Path, help="where the session is rendered (kept; default a temporary dir)")
     ap.add_argument("--browsers", type=int, default=0, help=argparse.SUPPRESS)
     ap.add_argument("--console", action="store_true",
-                    help="instead: latency with the operator console on (--http), 0 and then 2 headless Chromium "
-                         "pages connected (runs alternated --repeats times)")
-    ap.add_argument("--repeats", type=int, default=1, help="with --console: pairs of runs (default 1)")
+                    help="instead: latency of live --http with 0 and 2 headless Chromium pages connected, in "
+                         "turns of --window-s during each replay")
+    ap.add_argument("--repeats", type=int, default=1, help="with --console: runs (default 1)")
+    ap.add_argument("--window-s", type=float, default=5.0,
+                    help="with --console: the pages are on the console and off it in turns of this long (default 5)")
     args = ap.parse_args()
 
     from shipstar.live._replay import plan_replay, replay, session_sensor_dirs, session_tables

@@ -10,7 +10,6 @@ instead of the dock's theodolite heading and levels.
 from __future__ import annotations
 
 import argparse
-import sys
 
 from shipstar.cli._common import (
     add_date_obs_is_argument,

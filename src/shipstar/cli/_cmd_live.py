@@ -53,7 +53,7 @@ datagram per epoch: $PSSTA at full precision, $HEHDT, $PASHR; the attitude of --
 joint, seed-rule or single); docs/file-formats.md.  Every second a status line on
 stderr and a status message on UDP ({"kind": "status", ...} or $PSSTS): frames in and
 out per sensor, lag, unsolved reasons, latency, Earth orientation quality.  --http
-[HOST:]PORT serves the read-only operator console, a web page updated 4 times a second
+[HOST:]PORT serves the read-only operator console, a web page updated 2.5 times a second
 (HOST default 127.0.0.1; docs/live.md, Operator console).
 
 A sensor that falls behind skips to its newest frames (each skipped frame an unsolved

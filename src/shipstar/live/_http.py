@@ -11,7 +11,7 @@ Three parts, none of which can slow the measurement:
   newest epoch's rows (the very rows the CSV and UDP carry, from
   :func:`~shipstar.pipeline._output.emission_rows`), per-sensor counts over the last
   minute, the last 10 minutes as history points (one per 0.5 s of session time) and the
-  alarms; four times a second, while a browser is connected, it encodes one snapshot
+  alarms; 2.5 times a second, while a browser is connected, it encodes one snapshot
   (JSON) shared by every browser;
 - **the HTTP server** (standard library ``ThreadingHTTPServer``, its own threads):
   ``GET /`` the page, ``GET /static/NAME`` its script, style and icon (read from the
@@ -47,7 +47,7 @@ MAX_STREAMS = 8
 HISTORY_S = 600.0
 HISTORY_STEP_S = 0.5
 #: Snapshots per second while a browser is connected.
-SNAPSHOT_HZ = 4.0
+SNAPSHOT_HZ = 2.5
 #: Thumbnails: at most one per sensor per this many seconds; longest side (px).
 THUMB_PERIOD_S = 1.0
 THUMB_SIZE_PX = 256

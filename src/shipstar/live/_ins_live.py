@@ -15,7 +15,6 @@ Bad sentences and records are counted and reported in one line each (the first 2
 from __future__ import annotations
 
 import json
-import math
 import queue
 import socket
 import threading
@@ -167,7 +166,3 @@ class LiveIns:
 
     def __repr__(self) -> str:
         return f"LiveIns({self.host}:{self.port})"
-
-
-def _finite(x) -> bool:
-    return isinstance(x, float) and math.isfinite(x)

@@ -164,13 +164,16 @@ def conditions_section(rep, summary: dict, series: dict | None) -> None:
             o, f = offs.get(s) or {}, flex.get(s) or {}
             amp, amp_sig = f.get("wave_amplitude_arcsec") or {}, f.get("wave_amplitude_sigma_arcsec") or {}
             st, st_sig = f.get("static_arcsec") or {}, f.get("static_sigma_arcsec") or {}
-            rows.append([f"{s} vs {summary.get('reference_sensor', '')}", f"{_f(o.get('offset_s') and o['offset_s'] * 1e3, '.3f')} \u00b1 "
-                            f"{_f(o.get('sigma_s') and o['sigma_s'] * 1e3, '.3f')}", "yes" if o.get("applied") else "no",
+            ms = [None if o.get(k) is None else o[k] * 1e3 for k in ("offset_s", "sigma_s")]
+            rows.append([f"{s} vs {summary.get('reference_sensor', '')}",
+                         f"{_f(ms[0], '.3f')} \u00b1 {_f(ms[1], '.3f')}",
+                         "yes" if o.get("applied") else "no",
                          " / ".join(f"{_f(st.get(a), '.1f')}\u00b1{_f(st_sig.get(a), '.1f')}" for a in _AXES),
                          " / ".join(f"{_f(amp.get(a), '.1f')}\u00b1{_f(amp_sig.get(a), '.1f')}" for a in _AXES),
                          "yes" if f.get("applied") else "no", "yes" if f.get("installation_drift") else "no"])
-        rep.table(["sensor vs reference", "clock offset (ms)", "applied", "static rotation bow / up / starboard (\u2033)",
-                   "wave amplitude bow / up / starboard (\u2033)", "flexure applied", "installation drift"], rows)
+        rep.table(["sensor vs reference", "clock offset (ms)", "applied",
+                   "static rotation bow / up / starboard (\u2033)", "wave amplitude bow / up / starboard (\u2033)",
+                   "flexure applied", "installation drift"], rows)
     if series:
         rep.figure(plot_mount_monitor(series, reference=summary.get("reference_sensor", "")),
                    "Clock offset and flexure monitor: each sensor's mount rotation relative to the reference "
