@@ -118,7 +118,7 @@ def _joint_rms(rows, truth) -> np.ndarray:
     return np.sqrt(np.mean(err ** 2, axis=0)), len(err)
 
 
-def _console_run(root: Path, tag: str, window_s: float) -> dict:
+def _console_run(root: Path, tag: str, window_s: float, nice: int = 0) -> dict:
     """One replay at 1x into ``live --http`` with two headless Chromium pages that are on
     the console and off it (about:blank) in turns of ``window_s`` seconds, so that both
     states see the same machine load; returns each single row's latency (frame appears ->
@@ -165,7 +165,7 @@ def _console_run(root: Path, tag: str, window_s: float) -> dict:
             if live.poll() is not None:
                 raise RuntimeError("".join(lines))
             time.sleep(0.05)
-        browsers = [Browser("about:blank", width=1280, height=900) for _ in range(2)]
+        browsers = [Browser("about:blank", width=1280, height=900, nice=nice) for _ in range(2)]
         time.sleep(2.0)                                     # the browsers' start-up settles
         appeared: dict = {}
         plan = plan_replay(session_sensor_dirs(root / "sea"), session_tables(root / "sea"))
@@ -222,7 +222,7 @@ def console_comparison(root: Path, args) -> int:
     """``--console``: latency with 0 and 2 browsers on the operator console, in turns."""
     runs = []
     for k in range(args.repeats):
-        r = _console_run(root, str(k), args.window_s)
+        r = _console_run(root, str(k), args.window_s, args.browser_nice)
         runs.append(r)
         print(f"run {k + 1}: 0 browsers {_q(r['lat'][0])}\n       2 browsers {_q(r['lat'][2])}\n"
               f"       skipped behind {r['skipped']}, browser CPU s on the console {r['cpu'][2]:.1f} / off it "
@@ -232,7 +232,8 @@ def console_comparison(root: Path, args) -> int:
     med = {n: float(np.median(v)) for n, v in agg.items()}
     p99 = {n: float(np.percentile(v, 99)) for n, v in agg.items()}
     print(f"\n== operator console: live --http, {args.duration_s:g} s replayed at 1x x {args.repeats}, two pages on "
-          f"the console and off it in turns of {args.window_s:g} s, {os.cpu_count()} cores, "
+          f"the console and off it in turns of {args.window_s:g} s, browsers at nice {args.browser_nice}, "
+          f"{os.cpu_count()} cores, "
           f"load {os.getloadavg()[0]:.1f}")
     for n in (0, 2):
         print(f"{n} browsers: latency median {med[n]:.1f} ms, p99 {p99[n]:.1f} ms (n {len(agg[n])})")
@@ -251,6 +252,9 @@ def main() -> int:
                     help="instead: latency of live --http with 0 and 2 headless Chromium pages connected, in "
                          "turns of --window-s during each replay")
     ap.add_argument("--repeats", type=int, default=1, help="with --console: runs (default 1)")
+    ap.add_argument("--browser-nice", type=int, default=0,
+                    help="with --console: the browsers' niceness (10: stand-ins for browsers on the bridge's own "
+                         "computers, taking what the measurement leaves; default 0: same priority)")
     ap.add_argument("--window-s", type=float, default=5.0,
                     help="with --console: the pages are on the console and off it in turns of this long (default 5)")
     args = ap.parse_args()

@@ -51,9 +51,12 @@ class Browser:
     width, height : int
         The page's viewport (CSS px).
     binary : str, optional
+    nice : int
+        Added to the browser's niceness (a benchmark's stand-in for a browser on another
+        computer: it takes what the measurement leaves of the cores).
     """
 
-    def __init__(self, url: str, width: int = 1280, height: int = 900, binary: str | None = None):
+    def __init__(self, url: str, width: int = 1280, height: int = 900, binary: str | None = None, nice: int = 0):
         binary = binary or chromium_path()
         if binary is None:
             raise FileNotFoundError(f"no chromium at {CHROMIUM} or on PATH")
@@ -72,6 +75,8 @@ class Browser:
         def fds():                                     # runs in the child, before the exec
             os.dup2(to_child_r, 3)                     # dup2 leaves 3 and 4 inheritable
             os.dup2(from_child_w, 4)
+            if nice:
+                os.nice(nice)
 
         self.proc = subprocess.Popen([binary, *FLAGS, f"--user-data-dir={self._profile.name}",
                                       f"--window-size={width},{height}", "about:blank"],
