@@ -112,6 +112,12 @@ class SessionEngine:
         from shipstar.pipeline._mounts import MountEstimator
 
         self._mounts = MountEstimator(self.configs, self.reference) if n > 1 else None   # clocks, flexure
+        if n > 1:
+            # the chi-square quantiles of the integrity check and the mount estimator load
+            # scipy.special (~170 ms): here, not at the first epoch (a stall live would pay)
+            from shipstar.pipeline._integrity import chi2_limit
+
+            chi2_limit(3 * (n - 1))
         self._warnings: list = []
         self.n_epochs = 0
 
