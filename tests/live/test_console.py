@@ -266,6 +266,12 @@ def test_every_alarm_is_raised_with_its_time_and_cleared(tmp_path, monkeypatch):
     c._publish(t)
     snap = json.loads(c._snapshot)
     assert {a["kind"] for a in snap["alarms"]} == set(alarms) and snap["run"] == c.run_id
+    # with --ins-udp the status carries the INS error estimate: the next history point has it
+    c._on_status({"sensors": {}, "ins": {"heading_bias_arcsec": 29.9, "pitch_bias_arcsec": 5.02,
+                                         "roll_bias_arcsec": float("nan")}}, t)
+    ok = SimpleNamespace(integrity=None, mounts=None, utc_jd1=2456366.5, utc_jd2=0.5, t_s=0.0)
+    c._add_history(ok, {}, {})
+    assert json.loads(c._history[-1][2])["ins"] == [29.9, 5.02, None]
     c._check(t + _http.CLEAR_AFTER_S + 1.0)          # nothing seen since: all cleared, still listed
     listed = c._alarms.as_list()
     assert len(listed) == 6 and all(a["until_utc"] for a in listed)

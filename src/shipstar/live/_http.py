@@ -170,6 +170,7 @@ class Console:
         self._now: dict | None = None
         self._now_mono: float | None = None
         self._status: dict = {}
+        self._ins = None                               # INS error estimate (--ins-udp), arcsec h/p/r
         self._skipped_seen: dict = {}
         self._behind_until: dict = {}
         self._history: collections.deque = collections.deque()    # (seq, session t_s, json text)
@@ -335,6 +336,8 @@ class Console:
         i = epoch.integrity
         if i is not None and i.checked:
             point["dis"] = _num(i.disagreement_arcsec)
+        if self._ins is not None:
+            point["ins"] = [None if v is None else round(v, 3) for v in self._ins]
         m = getattr(epoch, "mounts", None)
         if m is not None:
             point["clk"] = {n: (None if v.get("offset_s") is None else round(v["offset_s"] * 1e3, 4))
@@ -356,6 +359,9 @@ class Console:
 
     def _on_status(self, st: dict, mono: float) -> None:
         self._status = st
+        ins = st.get("ins")
+        if ins:                                        # the INS error now (INS reading minus truth)
+            self._ins = [_num(ins.get(f"{k}_bias_arcsec")) for k in ("heading", "pitch", "roll")]
         for name, v in (st.get("sensors") or {}).items():
             s = self._sensors.get(name)
             if s is None:

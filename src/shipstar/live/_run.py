@@ -488,8 +488,8 @@ class _Live:
                                    st["sensors"][name]["lag_s"], s.interval_unsolved)
                       for name, s in self.sensors.items()]
             self.udp.status(st, health, utc_jd_now(), self.eop)
-        if self.console is not None:
-            self.console.status(st)
+        if self.console is not None:               # with --ins-udp: the INS error estimate too
+            self.console.status({**st, "ins": self.s.ins.summary()} if self.s.ins is not None else st)
         for s in self.sensors.values():
             s.interval_in = s.interval_out = s.interval_unsolved = 0
         stream = self.s.status_stream

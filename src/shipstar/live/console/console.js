@@ -183,6 +183,7 @@
     others.forEach((n, i) => ["bow", "up", "stbd"].forEach((ax, k) =>
       flx.push(line(`${n} ${ax}`, COLORS[(3 * i + k) % COLORS.length], (p) => ((p.flx || {})[n] || [])[k]))));
     plot($("plot-flx"), flx, tmax);
+    plot($("plot-ins"), ["heading", "pitch", "roll"].map((ax, k) => line(ax, COLORS[k], (p) => (p.ins || [])[k])), tmax);
   }
   let span = 60;
 
