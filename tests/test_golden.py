@@ -28,7 +28,9 @@ TOLERANCE = {"t_s": 1e-6, "heading_deg": 1e-6, "pitch_deg": 1e-6, "roll_deg": 1e
 
 def _split(text: str):
     lines = text.splitlines()
-    comments = [line for line in lines if line.startswith("#")]
+    # the packaged IERS table's path depends on where the environment is installed: its name counts
+    comments = [line if not line.startswith("# eop_source = ") else "# eop_source = " + line.rsplit("/", 1)[-1]
+                for line in lines if line.startswith("#")]
     rows = list(csv.DictReader(io.StringIO("\n".join(line for line in lines if not line.startswith("#")))))
     return comments, rows
 
