@@ -247,6 +247,7 @@ class SessionEngine:
         epoch = fuse_epoch(self.n_epochs, t_k, self.start_utc_jd, configs, paired, offsets, motion,
                            self.options, self.roles, reference=self.reference)
         if self._mounts is not None:                    # clock offsets and flexure (pipeline._mounts)
+            epoch = self._mounts.with_flexure_uncertainty(epoch, fr_ref)
             shifts = [0.0 if p is None else t_k + o - self.t_s(p) for p, o in zip(paired, offsets)]
             fit = motion if motion is not None else self._motion.fit(limits)
             epoch = replace(epoch, mounts=self._mounts.update(t_k, epoch, paired, shifts, configs, fit))

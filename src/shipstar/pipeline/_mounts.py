@@ -320,6 +320,42 @@ class MountEstimator:
                 out[k] = replace(c, installation=_FlexedInstallation(c.installation, C))
         return tuple(out)
 
+    def with_flexure_uncertainty(self, epoch, fr_ref):
+        """``epoch`` with its joint attitude's covariance grown by the uncertainty of the
+        flexure applied to its fusion (``phi``'s sigma per deck axis): a mount error
+        ``dphi`` of sensor ``B`` moves the joint attitude by ``P S_B^-1 dphi`` (``P`` the
+        joint covariance, ``S_B`` sensor B's alone, both about the deck axes), which the
+        stars' covariance does not contain.  Unchanged where no flexure is applied."""
+        from dataclasses import replace
+
+        from shipstar.ship import ship_angles_jacobian
+
+        joint = epoch.joint
+        applied = [k for k, tr in self._tracks.items() if tr.flex_applied]
+        if not applied or not joint.solved or fr_ref is None or not fr_ref.ship.solved \
+                or not np.all(np.isfinite(joint.covariance_rad2)):
+            return epoch
+        a = self._angles(fr_ref)
+        try:
+            J = ship_angles_jacobian(joint.C_hor_from_deck)
+            J_inv = np.linalg.inv(J)
+            P_deck = J_inv @ joint.covariance_rad2 @ J_inv.T
+            extra = np.zeros((3, 3))
+            for k in applied:
+                single = epoch.single[k]
+                if not single.solved or not np.all(np.isfinite(single.covariance_rad2)):
+                    continue
+                S_deck = J_inv @ single.covariance_rad2 @ J_inv.T
+                W = P_deck @ np.linalg.inv(S_deck)
+                _, sigma_arcsec = self._tracks[k].phi(a)
+                if np.all(np.isfinite(sigma_arcsec)):
+                    extra += W @ np.diag((sigma_arcsec * ASEC2RAD) ** 2) @ W.T
+        except np.linalg.LinAlgError:
+            return epoch
+        if not extra.any():
+            return epoch
+        return replace(epoch, joint=replace(joint, covariance_rad2=joint.covariance_rad2 + J @ extra @ J.T))
+
     @staticmethod
     def _angles(fr_ref) -> np.ndarray:
         return np.array([fr_ref.ship.roll_rad, fr_ref.ship.pitch_rad]) * RAD2DEG
