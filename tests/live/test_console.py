@@ -12,7 +12,6 @@ import http.client
 import json
 import os
 import shutil
-import signal
 import socket
 import subprocess
 import sys
@@ -24,6 +23,8 @@ import numpy as np
 import pytest
 
 from shipstar.live._cdp import chromium_path
+
+from _live_process import Live  # noqa: E402  (tests/live on sys.path, pytest's rootdir-less import)
 
 DOCS_SHOT = Path(__file__).resolve().parents[2] / "docs" / "img" / "console.png"
 
@@ -78,41 +79,6 @@ class Receiver:
         self._stop.set()
         self._thread.join(2.0)
         self.sock.close()
-
-
-class Live:
-    """A ``shipstar live`` subprocess; its stderr collected in a thread."""
-
-    def __init__(self, cwd, args):
-        self.proc = subprocess.Popen([sys.executable, "-m", "shipstar", "live", *args], cwd=cwd,
-                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        self.lines: list = []
-        self._thread = threading.Thread(target=self._read, daemon=True)
-        self._thread.start()
-
-    def _read(self):
-        for line in self.proc.stderr:
-            self.lines.append(line.rstrip("\n"))
-
-    def wait_line(self, fragment, timeout_s=120.0):
-        end = time.monotonic() + timeout_s
-        while time.monotonic() < end:
-            if any(fragment in line for line in self.lines):
-                return
-            assert self.proc.poll() is None, "\n".join(self.lines)
-            time.sleep(0.05)
-        raise AssertionError(f"no line with {fragment!r}:\n" + "\n".join(self.lines))
-
-    def stop(self, timeout_s=60.0):
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
-        try:
-            self.proc.communicate(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.communicate()
-        self._thread.join(5.0)
-        return self.proc.returncode
 
 
 def _install_chromium() -> str:
@@ -373,7 +339,7 @@ def test_console_in_headless_chromium(chromium, session, tmp_path):
         run1 = browser.evaluate("window.shipstarConsole.run")
 
         # live stops: the page says so; a new live run on the same port: it reconnects
-        assert live.stop() == 0, live.lines
+        assert live.interrupt() == 0, live.lines
         browser.wait_for("document.getElementById('conn').textContent === 'reconnecting'", timeout_s=20)
         incoming2 = tmp_path / "in2"
         incoming2.mkdir()
@@ -393,5 +359,5 @@ def test_console_in_headless_chromium(chromium, session, tmp_path):
             browser.close()
         for lv in (live, live2):
             if lv is not None and lv.proc.poll() is None:
-                lv.stop()
+                lv.interrupt()
         rx.close()

@@ -21,6 +21,8 @@ import pytest
 from shipstar.calibrate.installation import Installation, save_installation
 from shipstar.pipeline import ATTITUDE_COLUMNS
 
+from _live_process import Live  # noqa: E402  (tests/live on sys.path, pytest's rootdir-less import)
+
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
     """A 1 s rendered sea session (A2 30 ms late: pairing and carry), true installations,
@@ -76,39 +78,6 @@ class Receiver:
         self._stop.set()
         self._thread.join(2.0)
         self.sock.close()
-
-
-class Live:
-    """A ``shipstar live`` subprocess; its stderr collected in a thread."""
-
-    def __init__(self, cwd, args):
-        self.proc = subprocess.Popen([sys.executable, "-m", "shipstar", "live", *args], cwd=cwd,
-                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        self.lines: list = []
-        self._thread = threading.Thread(target=self._read, daemon=True)
-        self._thread.start()
-
-    def _read(self):
-        for line in self.proc.stderr:
-            self.lines.append(line.rstrip("\n"))
-
-    def wait_line(self, fragment, timeout_s=60.0):
-        end = time.monotonic() + timeout_s
-        while time.monotonic() < end:
-            if any(fragment in line for line in self.lines):
-                return True
-            assert self.proc.poll() is None, "\n".join(self.lines)
-            time.sleep(0.02)
-        raise AssertionError(f"no line with {fragment!r}:\n" + "\n".join(self.lines))
-
-    def stop(self, sig=signal.SIGTERM, timeout_s=60.0):
-        self.proc.send_signal(sig)
-        out = self.proc.stdout.read()
-        self.proc.wait(timeout_s)
-        self._thread.join(5.0)
-        self.proc.stdout.close()
-        self.proc.stderr.close()
-        return self.proc.returncode, out
 
 
 def _replay(session_root, to_dir, speed=1.0):
