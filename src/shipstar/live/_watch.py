@@ -48,8 +48,17 @@ class FrameWatcher:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="shipstar-live-watch", daemon=True)
         self.n_events = 0
+        self._before = None                      # names present at start (until the watch is set up)
 
     def start(self) -> "FrameWatcher":
+        # what is there now is not a new frame; what appears before the watch is set up in
+        # its thread is, and the first look after the set-up finds it (_run)
+        self._before = {}
+        for name, d in self.dirs.items():
+            try:
+                self._before[name] = set(os.listdir(d))
+            except OSError:
+                pass
         self._thread.start()
         return self
 
@@ -80,6 +89,10 @@ class FrameWatcher:
                                                 debounce=DEBOUNCE_MS, step=STEP_MS, rust_timeout=TICK_MS,
                                                 yield_on_timeout=True, stop_event=self._stop, recursive=False,
                                                 raise_interrupt=False):
+                    if self._before is not None:           # the watch is set up: what came meanwhile
+                        before, self._before = self._before, None
+                        for name in present:
+                            self._rescan(name, skip=before.get(name, set()))
                     self._handle(changes)
                     if any(not self.dirs[n].is_dir() for n in present) or \
                             any(self.dirs[n].is_dir() for n in gone):
@@ -101,8 +114,9 @@ class FrameWatcher:
             self.n_events += 1
             self.events.put(("file", name, str(p), now))
 
-    def _rescan(self, name: str) -> None:
-        """Frames that appeared while a directory was away (or before the watch began)."""
+    def _rescan(self, name: str, skip=frozenset()) -> None:
+        """Frames that appeared while a directory was away (or before the watch began),
+        except the names in ``skip``."""
         from shipstar._fitsio import is_fits_name
 
         now = time.monotonic()
@@ -111,5 +125,5 @@ class FrameWatcher:
         except OSError:
             return
         for entry in entries:
-            if is_fits_name(entry):
+            if is_fits_name(entry) and entry not in skip:
                 self.events.put(("file", name, str(self.dirs[name] / entry), now))
