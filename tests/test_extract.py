@@ -615,3 +615,58 @@ def test_smeared_frame_flags_saturated_edge_and_trails():
     assert len(trail) == 1 and len(others) <= 2 and np.all(result.snr[np.setdiff1d(others, trail)] < 6.0)
     x, y = result.xy_px[trail[0]]
     assert 100 <= x <= 400 and abs(y - (900.0 - 140.0 * (x - 100.0) / 300.0)) < 8.0      # on the trail
+
+
+# -- the compiled kernels against SciPy (the code they replaced) ------------------------------
+
+def test_compiled_box_mean_and_labels_match_scipy_ndimage():
+    """``_kernels.box3`` is ``scipy.ndimage.uniform_filter(size=3, mode="nearest")`` to the bit,
+    ``label_runs`` numbers components as ``scipy.ndimage.label`` does (4- and 8-connected)."""
+    from scipy import ndimage
+
+    from shipstar.extract._kernels import box3, label_runs
+
+    rng = np.random.default_rng(16)
+    for _ in range(60):
+        h, w = (int(n) for n in rng.integers(1, 70, size=2))
+        image = (rng.normal(100.0, 30.0, size=(h, w)) * rng.choice([1e-3, 1.0, 1e4])).astype(np.float32)
+        np.testing.assert_array_equal(box3(image), ndimage.uniform_filter(image, 3, mode="nearest"))
+        above = image > np.quantile(image, rng.uniform(0.3, 0.8))
+        idx = np.flatnonzero(above)
+        for diagonal, structure in ((False, None), (True, np.ones((3, 3), dtype=bool))):
+            expected, n_expected = ndimage.label(above, structure=structure)
+            labels, n = label_runs(idx, w, diagonal=diagonal)
+            got = np.zeros(h * w, dtype=np.int64)
+            got[idx] = labels + 1
+            assert n == n_expected
+            np.testing.assert_array_equal(got, expected.reshape(-1))
+
+
+def test_compiled_detection_passes_match_numpy():
+    """Candidates, local maxima and 3 x 3 neighbours of the C kernels against plain NumPy on
+    every pixel type the extraction takes."""
+    from shipstar.extract._kernels import candidates, local_max, neighbours
+
+    rng = np.random.default_rng(17)
+    for dtype in (np.uint8, np.int8, np.uint16, np.int16, np.uint32, np.int32, np.int64, np.float32, np.float64):
+        h, w, block = 45, 70, 16
+        image = rng.integers(0, 100, size=(h, w)).astype(dtype)
+        level = rng.integers(40, 60, size=(-(-h // block), -(-w // block))).astype(dtype)
+        rows = np.minimum(np.arange(h) // block, level.shape[0] - 1)
+        cols = np.minimum(np.arange(w) // block, level.shape[1] - 1)
+        idx = np.flatnonzero(image > level[rows][:, cols])
+        np.testing.assert_array_equal(candidates(image, level, block), idx)
+        padded = np.pad(image.astype(float), 1, constant_values=-np.inf)
+        r, c = np.divmod(idx, w)
+        is_max = np.ones(len(idx), dtype=bool)
+        values = np.empty((len(idx), 8))
+        for k, (dr, dc) in enumerate(((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))):
+            nb = padded[r + 1 + dr, c + 1 + dc]
+            is_max &= (image.reshape(-1)[idx] > nb) if (dr, dc) < (0, 0) else (image.reshape(-1)[idx] >= nb)
+            values[:, k] = np.where(np.isfinite(nb), nb, image.reshape(-1)[idx])
+        np.testing.assert_array_equal(local_max(image, idx), is_max)
+        got_values, inside = neighbours(image, idx)
+        np.testing.assert_array_equal(got_values, values)
+        np.testing.assert_array_equal(inside, np.isfinite(values) & np.isfinite(
+            np.stack([padded[r + 1 + dr, c + 1 + dc] for dr in (-1, 0, 1) for dc in (-1, 0, 1) if (dr, dc) != (0, 0)],
+                     axis=1)))

@@ -173,6 +173,87 @@ def test_a_star_near_the_top_is_found_near_the_top(tmp_path):
 
 # -- broken files --------------------------------------------------------------------------
 
+# -- the direct reader of plain images against astropy.io.fits -----------------------------
+
+def _astropy_pixels(path):
+    """Reference: astropy.io.fits's pixels of the primary HDU, native byte order."""
+    from astropy.io import fits
+
+    with fits.open(path, memmap=False) as hdul:
+        data = np.asarray(hdul[0].data)
+    return data.astype(data.dtype.newbyteorder("="))
+
+
+def _via_astropy(monkeypatch, call, path):
+    """What shipstar's reader gives with its direct path switched off (astropy reads)."""
+    from shipstar import _fitsio
+
+    with monkeypatch.context() as m:
+        m.setattr(_fitsio, "_quick_read", lambda *args: None)
+        return call(path)
+
+
+_PLAIN = [
+    (np.uint8, 8, None), (np.int16, 16, None), (np.uint16, 16, 32768), (np.int32, 32, None),
+    (np.uint32, 32, 2147483648), (np.float32, -32, None), (np.float64, -64, None),
+]
+
+
+@pytest.mark.parametrize("dtype, bitpix, bzero", _PLAIN)
+@pytest.mark.parametrize("roworder", [None, "BOTTOM-UP"])
+def test_plain_images_are_read_directly_as_astropy_reads_them(tmp_path, monkeypatch, dtype, bitpix, bzero, roworder):
+    from astropy.io import fits
+
+    from shipstar._fitsio import _quick_read
+
+    rng = np.random.default_rng(bitpix + 100)
+    info = np.iinfo(dtype) if np.dtype(dtype).kind in "ui" else None
+    data = (rng.integers(info.min, info.max, size=(37, 53), endpoint=True, dtype=dtype) if info is not None
+            else rng.normal(0.0, 1e3, size=(37, 53)).astype(dtype))
+    cards = [("DATE-OBS", START), ("EXPTIME", 0.08), ("SENSOR", "A1"), ("SITELAT", 31.9), ("PRESSURE", 1012.5)]
+    path = _write(tmp_path / "plain.fits", cards + ([("ROWORDER", roworder)] if roworder else []), data)
+    header = fits.getheader(path)
+    assert header["BITPIX"] == bitpix and header.get("BZERO") == bzero         # the case this test means
+    assert _quick_read(path, "start") is not None                               # ... read directly
+    image, meta = read_fits(path)
+    expected = _astropy_pixels(path)
+    expected = expected[::-1] if roworder else expected
+    assert image.dtype == expected.dtype == np.dtype(dtype) and image.dtype.isnative
+    np.testing.assert_array_equal(image, expected)
+    np.testing.assert_array_equal(read_fits_image(path), expected)
+    assert meta == _via_astropy(monkeypatch, read_fits, path)[1]
+    assert image.flags.writeable and image.flags.c_contiguous
+
+
+@pytest.mark.parametrize("cards", [[("BSCALE", 2.0)], [("BZERO", 10.0)], [("BLANK", 7)]])
+def test_scaled_images_are_left_to_astropy(tmp_path, cards):
+    from astropy.io import fits
+
+    from shipstar._fitsio import _quick_read
+
+    data = np.arange(30, dtype=np.int16).reshape(6, 5)
+    hdu = fits.PrimaryHDU(data)
+    for key, value in cards:
+        hdu.header[key] = value
+    hdu.header["DATE-OBS"], hdu.header["EXPTIME"] = START, 0.08
+    hdu.writeto(tmp_path / "scaled.fits")
+    path = tmp_path / "scaled.fits"
+    assert _quick_read(path, "start") is None
+    image = read_fits_image(path)
+    expected = _astropy_pixels(path)
+    assert image.dtype == expected.dtype
+    np.testing.assert_array_equal(image, expected)
+
+
+def test_a_truncated_plain_image_is_left_to_astropy(tmp_path):
+    from shipstar._fitsio import _quick_read
+
+    data = _good_bytes(tmp_path)
+    (tmp_path / "trunc.fits").write_bytes(data[:len(data) - 3000])
+    assert _quick_read(tmp_path / "good.fits", None) is not None
+    assert _quick_read(tmp_path / "trunc.fits", None) is None
+
+
 def _good_bytes(tmp_path):
     path = _write(tmp_path / "good.fits", [("DATE-OBS", START), ("EXPTIME", 0.1)], np.zeros((64, 64), np.uint16))
     return path.read_bytes()

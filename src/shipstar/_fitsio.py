@@ -25,7 +25,15 @@ image; it is flipped so that row 0 is the top (``docs/conventions.md``: y down, 
 pixel centre (0, 0)).  Without ``ROWORDER`` (or with ``'TOP-DOWN'``) the first row stored
 is taken as the top, as camera drivers and shipstar's own simulator write it.
 
-astropy is imported only when a file is read.  Its warnings (a truncated file, a header
+**Plain images are read directly**: a primary HDU holding a 2-D image of BITPIX 8, 16,
+32, -32 or -64, unscaled or with the unsigned offset (``BZERO`` 32768 / 2147483648,
+``BSCALE`` 1: uint16 / uint32, as astropy gives them), is read from its 80-character
+cards and its big-endian pixels straight into the array (~8x faster than astropy for a
+1024 x 1024 16-bit frame).  Everything else -- gzip, extensions, scaled data, ``BLANK``,
+long-string cards, a truncated file -- is read by astropy, which gives the same pixels
+and the same :class:`FitsFrameInfo` (``tests/test_fits_io.py`` compares the two).
+
+astropy is imported only when a file is read that way.  Its warnings (a truncated file, a header
 that is not a multiple of 2880 bytes) never reach the user: a file that cannot be read
 raises one :class:`~shipstar.errors.ShipstarError` line naming the file and the cause.
 
@@ -39,6 +47,7 @@ from __future__ import annotations
 import contextlib
 import math
 import re
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -76,6 +85,12 @@ _EXPOSURE_KEYS = ("EXPTIME", "EXPOSURE")
 _QUICK_KEYS = frozenset(("NAXIS", "NAXIS1", "NAXIS2", "DATE-OBS", "DATE-BEG", "DATE-AVG", "DATE-END", "EXPTIME",
                          "EXPOSURE", "TIMESYS", "SENSOR", "INSTRUME", "ROWORDER", "SITELAT", "SITELONG",
                          "SITEELEV", "PRESSURE", "TEMPERAT", "REFRMOD", "SIMFRAME"))
+#: Cards of a plain image's data (``_quick_read``).
+_DATA_KEYS = frozenset(("BITPIX", "BZERO", "BSCALE", "BLANK", "GROUPS"))
+#: BITPIX -> stored dtype of the plain images read directly.
+_PLAIN_DTYPES = {8: ">u1", 16: ">i2", 32: ">i4", -32: ">f4", -64: ">f8"}
+#: (BITPIX, BZERO) of unsigned integers stored with an offset -> (XOR of the sign bit, dtype).
+_UNSIGNED = {(16, 32768.0): (0x8000, np.uint16), (32, 2147483648.0): (0x80000000, np.uint32)}
 _SEXAGESIMAL = re.compile(r"^\s*([+-]?)(\d+)[: ]+(\d+)(?:[: ]+(\d+(?:\.\d*)?))?\s*$")
 
 
@@ -272,34 +287,117 @@ def _card_value(card: str):
     return {"T": True, "F": False}.get(v, v)
 
 
-def _quick_primary_header(path: Path) -> dict | None:
-    """The cards shipstar uses of a primary 2-D image HDU, read straight from the
+def _quick_cards(head: bytes):
+    """``(cards, header_bytes)`` of a primary 2-D image HDU from the first bytes of its file:
+    the cards shipstar uses (``_QUICK_KEYS``, ``_DATA_KEYS``) read straight from the
     80-character header cards (the standard's fixed format), ~50x faster than astropy's
-    full parse; None when the primary HDU is not a plain 2-D image (astropy then reads it,
-    which also handles extensions, compression and unusual cards)."""
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(_BLOCK * _MAX_HEADER_BLOCKS)
-    except OSError:
-        return None
+    full parse, and the header's length (whole 2880-byte blocks); None when the primary
+    HDU is not a plain 2-D image (astropy then reads it, which also handles extensions,
+    compression and unusual cards)."""
     if not head.startswith(b"SIMPLE  ="):
         return None
     cards = {}
     for i in range(0, len(head) - _CARD + 1, _CARD):
-        card = head[i:i + _CARD].decode("ascii", "replace")
-        key = card[:8].strip()
+        key = head[i:i + 8].decode("ascii", "replace").strip()       # only the cards used are decoded
         if key == "END":
+            header_bytes = -(-(i + _CARD) // _BLOCK) * _BLOCK
             break
         if key == "CONTINUE":                       # a long string: leave it to astropy
             return None
-        if card[8:10] == "= " and key in _QUICK_KEYS:
-            cards[key] = _card_value(card)
+        if (key in _QUICK_KEYS or key in _DATA_KEYS) and head[i + 8:i + 10] == b"= ":
+            cards[key] = _card_value(head[i:i + _CARD].decode("ascii", "replace"))
     else:
         return None
     if cards.get("NAXIS") != "2" or not str(cards.get("NAXIS1", "")).isdigit() \
             or not str(cards.get("NAXIS2", "")).isdigit():
         return None
-    return cards
+    return cards, header_bytes
+
+
+def _quick_primary_header(path: Path) -> dict | None:
+    """The cards shipstar uses of a primary 2-D image HDU (:func:`_quick_cards`), or None."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(_BLOCK * _MAX_HEADER_BLOCKS)
+    except OSError:
+        return None
+    quick = _quick_cards(head)
+    return None if quick is None else quick[0]
+
+
+def _plain_dtype(cards: dict):
+    """``(stored dtype (big-endian), unsigned offset's XOR mask or 0, dtype returned)`` of a
+    plain image: BITPIX 8/16/32/-32/-64 unscaled (no BZERO/BSCALE, or 0/1), or 16/32-bit
+    integers with the unsigned offset (BZERO = 2^15 / 2^31, BSCALE = 1), which astropy
+    returns as uint16 / uint32; None for anything else (scaled data, BLANK, random groups)."""
+    try:
+        bitpix = int(str(cards.get("BITPIX", "")))
+        bzero = float(str(cards.get("BZERO", "0")).replace("D", "E"))
+        bscale = float(str(cards.get("BSCALE", "1")).replace("D", "E"))
+    except ValueError:
+        return None
+    if bitpix not in _PLAIN_DTYPES or "BLANK" in cards or "GROUPS" in cards or bscale != 1.0:
+        return None
+    if bzero == 0.0:
+        stored = np.dtype(_PLAIN_DTYPES[bitpix])
+        return stored, 0, stored.newbyteorder("=")
+    if (bitpix, bzero) in _UNSIGNED:
+        mask, dtype = _UNSIGNED[(bitpix, bzero)]
+        return np.dtype(_PLAIN_DTYPES[bitpix]), mask, np.dtype(dtype)
+    return None
+
+
+_local = threading.local()
+#: Largest read buffer kept for the next frame (larger images get a fresh one).
+_MAX_KEPT_BYTES = 64 * 2 ** 20
+
+
+def _read_buffer(nbytes: int) -> np.ndarray:
+    """A per-thread byte buffer of ``nbytes`` for the pixels as stored, reused from frame to
+    frame (a fresh 2 MB array costs ~500 page faults on first touch)."""
+    buf = getattr(_local, "buffer", None)
+    if buf is None or buf.size < nbytes:
+        buf = np.empty(nbytes, dtype=np.uint8)
+        if nbytes <= _MAX_KEPT_BYTES:
+            _local.buffer = buf
+    return buf[:nbytes]
+
+
+def _quick_read(path: Path, date_obs_is: str | None):
+    """``(image, FitsFrameInfo or None)`` of a plain FITS image read directly (the header's
+    cards, then the pixels straight into the array, byte-swapped in place), or None when
+    it is not one that this reader takes with certainty (:func:`_plain_dtype`; gzip,
+    extensions, a short file...): astropy reads those (and words their errors)."""
+    try:
+        with open(path, "rb") as fh:
+            quick = _quick_cards(fh.read(_BLOCK * _MAX_HEADER_BLOCKS))
+            if quick is None:
+                return None
+            cards, header_bytes = quick
+            kind = _plain_dtype(cards)
+            if kind is None:
+                return None
+            stored, mask, dtype = kind
+            shape = (int(cards["NAXIS2"]), int(cards["NAXIS1"]))
+            if min(shape) < 1:
+                return None
+            raw = _read_buffer(shape[0] * shape[1] * stored.itemsize)
+            fh.seek(header_bytes)
+            if fh.readinto(raw) != raw.nbytes:
+                return None                                  # truncated: astropy says so
+    except (OSError, ValueError):
+        return None
+    # one pass from the (reused) read buffer into the image, native byte order
+    if mask:                                # the unsigned offset: flip the sign bit of the stored integers
+        data = np.empty(shape, dtype=dtype)
+        np.bitwise_xor(raw.view(stored.newbyteorder(">").str.replace("i", "u")).reshape(shape), dtype.type(mask),
+                       out=data)
+    else:
+        data = raw.view(stored).reshape(shape).astype(stored.newbyteorder("="))
+    name = path.name
+    row_order = _row_order(cards.get, name)
+    info = None if date_obs_is is None else _info(cards.get, shape, name, date_obs_is)
+    return _oriented(data, row_order, name), info
 
 
 def _gzip_is_complete(path: Path) -> tuple[bool, str]:
@@ -429,6 +527,10 @@ def _lookup(image_header, primary_header):
 def _open(path: Path, *, with_data: bool, date_obs_is: str | None):
     """``(image or None, FitsFrameInfo or None)``; ``date_obs_is=None``: the image only
     (only ``ROWORDER`` is read from the header)."""
+    if with_data:
+        quick = _quick_read(path, date_obs_is)
+        if quick is not None:
+            return quick
     from astropy.io import fits
 
     name = path.name

@@ -47,7 +47,8 @@ def _sep_arcsec(ra1, dec1, ra2, dec2):
 
 
 JSON_KEYS = {"solved", "reason", "ra_deg", "dec_deg", "roll_deg", "fov_deg", "matched",
-             "rms_arcsec", "time_ms", "date_obs", "camera", "width_px", "height_px", "stars"}
+             "rms_arcsec", "time_ms", "date_obs", "camera", "width_px", "height_px", "stars",
+             "p_false", "q_icrs_from_sensor_wxyz", "fov_search"}
 
 
 @pytest.fixture(scope="module")
@@ -144,7 +145,14 @@ def _assert_one_line_error(proc):
     ["/no/such/image.png", "--fov-deg", "10"],
     ["IMAGE", "--fov-deg", "-3"],
     ["IMAGE", "--fov-deg", "nan"],
-    ["IMAGE"],                                        # neither --camera nor --fov-deg
+    [],                                               # no input
+    ["--centroids", "IMAGE"],                         # without --image-size-px
+    ["IMAGE", "--image-size-px", "512x512"],             # --image-size-px without --centroids
+    ["--centroids", "IMAGE", "--image-size-px", "512by512"],
+    ["--centroids", "IMAGE", "--image-size-px", "512x512", "--fov-deg", "12"],   # FITS is not text
+    ["IMAGE", "IMAGE", "--wcs-header", "/tmp/x.hdr", "--camera", "seed004"],
+    ["IMAGE", "--camera", "seed004", "--wcs-out", "IMAGE"],                   # overwrite input
+    ["IMAGE", "--camera", "seed004", "--prior-error-deg", "40"],
     ["IMAGE", "--fov-deg", "10", "--camera", "A1"],   # both
     ["IMAGE", "--camera", "A1"],                      # 512 x 512 image, 1024 x 1024 camera
     ["IMAGE", "--camera", "no_such_camera.toml"],
@@ -181,3 +189,133 @@ def test_far_wrong_fov_is_not_solved(env, fits_frame):
     proc = _run(env, str(fits_frame), "--fov-deg", "17", "--json")
     assert proc.returncode == 1, proc.stderr
     assert json.loads(proc.stdout)["solved"] is False
+
+
+def test_blind_solve_of_a_real_photo(env):
+    ref = json.loads(REFERENCE.read_text())["orion_belt"]
+    proc = _run(env, str(REAL / "orion_belt.jpg"), "--json")
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout)
+    assert set(out) == JSON_KEYS and out["fov_search"] == "blind"
+    assert _sep_arcsec(out["ra_deg"], out["dec_deg"], ref["ra_deg"], ref["dec_deg"]) < 60
+    assert out["fov_deg"] == pytest.approx(ref["fov_deg"], rel=0.01)
+    assert out["p_false"] < 1e-6
+
+
+def test_json_quaternion_is_the_true_attitude(solved_json, simulated):
+    from shipstar.frames import matrix_from_q_wxyz, rotation_angle_rad
+
+    _, frame = simulated
+    q = np.asarray(solved_json["q_icrs_from_sensor_wxyz"])
+    assert q[0] >= 0 and np.linalg.norm(q) == pytest.approx(1.0, abs=1e-12)
+    err = rotation_angle_rad(matrix_from_q_wxyz(q).T @ frame.C_icrs_from_sensor)
+    assert math.degrees(err) * 3600 < 120.0                       # roll dominates
+    assert 0.0 < solved_json["p_false"] < 1e-6
+
+
+def _matched_sky_errors_arcsec(header, stars):
+    """astropy.wcs pixel -> sky of the matched stars against their Hipparcos places."""
+    from astropy.wcs import WCS
+
+    from shipstar.sky.catalog import load_hipparcos
+
+    cat = load_hipparcos()
+    row = {int(h): i for i, h in enumerate(np.asarray(cat.hip))}
+    matched = [s for s in stars if s["hip"] > 0]
+    radec = WCS(header).all_pix2world([[s["x_px"], s["y_px"]] for s in matched], 0)
+    got = unit_from_ra_dec(np.radians(radec[:, 0]), np.radians(radec[:, 1]))
+    idx = [row[s["hip"]] for s in matched]
+    ref = unit_from_ra_dec(np.asarray(cat.ra_rad)[idx], np.asarray(cat.dec_rad)[idx])
+    return np.degrees(np.arccos(np.clip(np.sum(got * ref, axis=1), -1, 1))) * 3600
+
+
+def test_wcs_out_copy_and_header_sidecar(env, fits_frame, tmp_path):
+    from astropy.io import fits
+
+    out_fits, out_hdr = tmp_path / "wcs.fits", tmp_path / "frame.hdr"
+    proc = _run(env, str(fits_frame), "--camera", "seed004", "--json", "--wcs-out", str(out_fits),
+                "--wcs-header", str(out_hdr))
+    assert proc.returncode == 0, proc.stderr
+    res = json.loads(proc.stdout)
+    assert res["wcs_file"] == str(out_fits) and res["wcs_header_file"] == str(out_hdr)
+    with fits.open(out_fits) as hdul:
+        header = hdul[0].header
+        with fits.open(fits_frame) as orig:
+            np.testing.assert_array_equal(hdul[0].data, orig[0].data)    # the same pixels
+            assert header["DATE-AVG"] == orig[0].header["DATE-AVG"]       # and header cards
+    # seed004 has no distortion: a plain TAN projection; the catalog (J2000 places) and the
+    # frame (rendered at its epoch) differ by proper motion: a few arcsec at most
+    assert header["CTYPE1"] == "RA---TAN"
+    err = _matched_sky_errors_arcsec(header, res["stars"])
+    assert len(err) == res["matched"] and np.median(err) < 3.0 and err.max() < 20.0
+    side = fits.Header.fromtextfile(out_hdr)
+    assert (side["IMAGEW"], side["IMAGEH"]) == (512, 512)
+    assert side["CRVAL1"] == pytest.approx(header["CRVAL1"]) and side["CD1_2"] == header["CD1_2"]
+
+
+def test_wcs_header_of_a_real_photo_has_sip(env, tmp_path):
+    from astropy.io import fits
+
+    out_hdr = tmp_path / "virgo.hdr"
+    proc = _run(env, str(REAL / "orion_belt.jpg"), "--fov-deg", "10", "--json", "--wcs-header", str(out_hdr))
+    assert proc.returncode == 0, proc.stderr
+    res = json.loads(proc.stdout)
+    header = fits.Header.fromtextfile(out_hdr)
+    assert header["CTYPE1"] == "RA---TAN-SIP" and header["A_ORDER"] == 3
+    err = _matched_sky_errors_arcsec(header, res["stars"])
+    assert np.sqrt(np.mean(err ** 2)) < 2.0 * res["rms_arcsec"] + 5.0
+
+
+def _centroid_file(path, frame, n=40, flux=False):
+    """The frame's rendered stars (truth), brightest first, as a centroid list."""
+    order = np.argsort(np.asarray(frame.stars.mag))[:n]
+    xy = np.asarray(frame.stars.xy_px)[order]
+    lines = ["# x_px,y_px" + (",flux" if flux else ""), "x_px,y_px" + (",flux" if flux else "")]
+    for k, (x, y) in enumerate(xy):
+        lines.append(f"{x:.3f},{y:.3f}" + (f",{1000.0 / (k + 1):.3f}" if flux else ""))
+    if flux:                                     # order in the file does not matter
+        lines = lines[:2] + lines[2:][::-1]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("flux", [False, True])
+def test_centroid_list(env, simulated, tmp_path, flux):
+    _, frame = simulated
+    path = _centroid_file(tmp_path / "stars.csv", frame, flux=flux)
+    proc = _run(env, "--centroids", str(path), "--image-size-px", "512x512", "--fov-deg", "12", "--json")
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout)
+    assert out["solved"] and out["fov_search"] == "hint" and out["matched"] >= 20
+    assert _sep_arcsec(out["ra_deg"], out["dec_deg"], 83.8, -5.4) < 10.0
+    assert (out["width_px"], out["height_px"]) == (512, 512)
+
+
+def test_centroid_list_bad_line_is_one_line_error(env, tmp_path):
+    path = tmp_path / "bad.csv"
+    path.write_text("10,20\n30,forty\n")
+    proc = _run(env, "--centroids", str(path), "--image-size-px", "512x512")
+    _assert_one_line_error(proc)
+    assert "line 2" in proc.stderr
+
+
+def test_track_a_sequence(env, tmp_path):
+    """Three frames of a slowly turning camera: the first lost-in-space, then tracking."""
+    from shipstar.simulate import simulate_frame, write_frame
+
+    cam = camera_preset("seed004")
+    paths, truth = [], []
+    for k in range(3):
+        C = C_icrs_from_sensor(math.radians(60.0 + 0.2 * k), math.radians(30.0), math.radians(5.0 * k / 10))
+        frame = simulate_frame(cam, C_icrs_from_sensor=C, seed=20 + k)
+        paths.append(tmp_path / f"f{k}.fits")
+        write_frame(frame, paths[-1])
+        truth.append(C)
+    proc = _run(env, "--track", *map(str, paths), "--camera", "seed004", "--json")
+    assert proc.returncode == 0, proc.stderr
+    rows = [json.loads(line) for line in proc.stdout.splitlines()]
+    assert [r["input"] for r in rows] == [str(p) for p in paths]
+    assert [r["fov_search"] for r in rows] == ["camera", "tracking", "tracking"]
+    for r, C in zip(rows, truth):
+        assert r["solved"] and _sep_arcsec(r["ra_deg"], r["dec_deg"], *np.degrees(
+            [math.atan2(C[1, 0], C[0, 0]) % (2 * math.pi), math.asin(C[2, 0])])) < 10.0

@@ -76,7 +76,7 @@ def tmp_cache(tmp_path, monkeypatch):
 
 def test_cache_is_written_reused_and_keyed_by_parameters(tmp_cache):
     db = build_database(12.0, mag_limit=5.0)
-    files = sorted(tmp_cache.glob("stardb_*.npz"))
+    files = sorted(tmp_cache.glob("stardb_*.bin"))
     assert len(files) == 1
     _database._MEMO.clear()
     again = build_database(12.0, mag_limit=5.0)
@@ -84,23 +84,27 @@ def test_cache_is_written_reused_and_keyed_by_parameters(tmp_cache):
     np.testing.assert_array_equal(again.pattern_stars, db.pattern_stars)
     other = build_database(12.0, mag_limit=5.2)
     assert other.n_stars > db.n_stars
-    assert len(list(tmp_cache.glob("stardb_*.npz"))) == 2
+    assert len(list(tmp_cache.glob("stardb_*.bin"))) == 2
 
 
 def test_cache_file_with_other_parameters_or_version_is_rebuilt(tmp_cache, monkeypatch):
     db = build_database(12.0, mag_limit=5.0)
-    (path,) = tmp_cache.glob("stardb_*.npz")
-    with np.load(path) as z:
-        data = dict(z)
-    data["params_json"] = np.array(str(data["params_json"]).replace('"bins": 50', '"bins": 40'))
-    np.savez(path, **data)
+    (path,) = tmp_cache.glob("stardb_*.bin")
+    raw = path.read_bytes()
+    assert raw.count(b'\\"bins\\": 50') == 1                  # in the JSON header's params
+    path.write_bytes(raw.replace(b'\\"bins\\": 50', b'\\"bins\\": 40'))
     _database._MEMO.clear()
     rebuilt = build_database(12.0, mag_limit=5.0)
     assert rebuilt.build_time_s != db.build_time_s
+    path.write_bytes(path.read_bytes()[:-100])                    # truncated: rebuilt too
+    _database._MEMO.clear()
+    again = build_database(12.0, mag_limit=5.0)
+    assert again.build_time_s != rebuilt.build_time_s
+    np.testing.assert_array_equal(again.pattern_stars, db.pattern_stars)
     monkeypatch.setattr(_database, "DATABASE_VERSION", _database.DATABASE_VERSION + 1)
     _database._MEMO.clear()
     build_database(12.0, mag_limit=5.0)
-    assert len(list(tmp_cache.glob("stardb_*.npz"))) == 2
+    assert len(list(tmp_cache.glob("stardb_*.bin"))) == 2
 
 
 @pytest.mark.parametrize("args, kwargs, words", [

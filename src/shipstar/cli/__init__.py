@@ -35,10 +35,16 @@ EXIT_FAILED = 1      # the job ran but did not succeed (e.g. a frame did not sol
 EXIT_BAD_INPUT = 2   # bad input: one-line message on stderr
 
 
-def _command_modules():
+def _command_modules(only=None):
+    """The command modules; with ``only`` (a command word such as ``solve``) just the
+    module ``_cmd_<only>`` if there is one (``shipstar solve`` then imports no other
+    command's dependencies; the parser is rebuilt in full if it does not register it)."""
     import shipstar.cli as pkg
 
     names = sorted(m.name for m in pkgutil.iter_modules(pkg.__path__) if m.name.startswith("_cmd_"))
+    if only is not None:
+        mine = "_cmd_" + only.replace("-", "_")
+        names = [n for n in names if n == mine]
     return [importlib.import_module(f"shipstar.cli.{n}") for n in names]
 
 
@@ -66,7 +72,7 @@ class OneLineErrorParser(argparse.ArgumentParser):
         raise SystemExit(EXIT_BAD_INPUT)
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command=None) -> argparse.ArgumentParser:
     from shipstar import __version__
 
     parser = OneLineErrorParser(
@@ -77,6 +83,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"shipstar {__version__}")
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    mods = _command_modules(command) if command else []
+    for mod in mods:
+        mod.register(sub)
+    if command and command in sub.choices:
+        return parser
+    if mods:
+        return build_parser()
     for mod in _command_modules():
         mod.register(sub)
     return parser
@@ -87,7 +100,8 @@ def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     debug = "--debug" in argv  # accepted anywhere on the line, not only before the command
     argv = [a for a in argv if a != "--debug"]
-    parser = build_parser()
+    first = next((a for a in argv if not a.startswith("-")), None)
+    parser = build_parser(first if argv and argv[0] == first else None)
     args, extra = parser.parse_known_args(argv)
     args.debug = debug
     if extra:

@@ -66,8 +66,10 @@ Whole nights: rows are written as they are produced, to OUT.partial, renamed to 
 the session is complete; memory does not grow with the session.  Ctrl-C or SIGTERM stops
 after the current epoch, leaving OUT.partial with every finished row (and a checkpoint,
 OUT.resume): the same command with --resume continues it to the rows an uninterrupted
-run writes.  --workers N (default: the cores) processes the sensors and 60 s chunks of
-the session in N processes; the output is the same for every N.  --truth CSV (time_utc,
+run writes (with --ins, the star attitudes are kept in OUT.ins-stars and the INS is
+estimated over the whole session at the end).  --workers N (default: the cores)
+processes the sensors and 60 s chunks of the session in N processes; the output is the
+same for every N.  --truth CSV (time_utc,
 heading_deg, pitch_deg, roll_deg; simulated sessions) adds error RMS to the summary.
 The summary gives the Earth orientation quality (measured / predicted / extrapolated,
 UT1-UTC error), how the frame times were read (date_obs_is, time_sources) and the
@@ -487,7 +489,7 @@ def run(args) -> int:
     summary["warnings"] = list(dict.fromkeys(start_warnings + list(outcome.warnings)))
     summary.update(overrides)
     if not outcome.stopped:
-        finish_ins(args, job, ins_rows, summary)
+        finish_ins(args, job, ins_rows, summary, truth)
     if outcome.resumed_at_s is not None:
         summary["resumed_at_s"] = outcome.resumed_at_s
     if outcome.stopped:

@@ -21,6 +21,7 @@ import math
 
 import numpy as np
 
+from shipstar.extract._kernels import box3, label_runs
 from shipstar.extract._result import FLAG_ELONGATED, FLAG_FIT_FAILED
 
 __all__ = ["trail_mask", "PersistentPixels", "TRAIL_MIN_LENGTH_PX", "TRAIL_MIN_AXIS_RATIO"]
@@ -38,17 +39,18 @@ _CUT_SIGMA = 2.5
 
 def _region_shape(image, x: float, y: float, background: float, noise: float):
     """``(length_px, width_px)`` of the smoothed region around ``(x, y)`` (0, 0 if none)."""
-    from scipy import ndimage
-
     h, w = image.shape
     ix, iy = int(round(x)), int(round(y))
     x0, x1 = max(ix - _WINDOW_HALF_PX, 0), min(ix + _WINDOW_HALF_PX + 1, w)
     y0, y1 = max(iy - _WINDOW_HALF_PX, 0), min(iy + _WINDOW_HALF_PX + 1, h)
-    win = ndimage.uniform_filter(np.asarray(image[y0:y1, x0:x1], np.float32), 3, mode="nearest")
+    win = box3(image[y0:y1, x0:x1])               # scipy.ndimage.uniform_filter(..., 3, mode="nearest")
     above = win > background + _CUT_SIGMA * noise / 3.0
-    labels, n = ndimage.label(above)
-    if n == 0:
+    idx = np.flatnonzero(above)
+    if idx.size == 0:
         return 0.0, 0.0
+    found, _ = label_runs(idx, above.shape[1], diagonal=False)   # scipy.ndimage.label's 4-connectivity
+    labels = np.zeros(above.shape, dtype=np.int64)
+    labels.reshape(-1)[idx] = found + 1
     cx, cy = min(max(ix - x0, 0), x1 - x0 - 1), min(max(iy - y0, 0), y1 - y0 - 1)
     near = labels[max(cy - 2, 0):cy + 3, max(cx - 2, 0):cx + 3]
     ids = near[near > 0]

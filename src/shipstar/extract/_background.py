@@ -15,7 +15,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-__all__ = ["Mesh", "estimate_mesh"]
+from shipstar.extract._kernels import block_stats, median3, mesh_at
+
+__all__ = ["Mesh", "estimate_mesh", "median"]
 
 #: Gaussian-consistent factor of a 3-sigma-clipped RMS (std of N(0,1) clipped at +-3).
 _CLIPPED_RMS_TO_SIGMA = 1.0 / 0.9865
@@ -43,15 +45,8 @@ class Mesh:
         return i0, i1, g - i0
 
     def at(self, x_px, y_px):
-        """Bilinear background and noise at pixel positions (arrays of equal shape)."""
-        ny, nx = self.bg.shape
-        x0, x1, fx = self._weights(x_px, nx)
-        y0, y1, fy = self._weights(y_px, ny)
-        grid = np.stack([self.bg, self.noise])                         # one gather per corner for both
-        top = grid[:, y0, x0] * (1 - fx) + grid[:, y0, x1] * fx
-        bottom = grid[:, y1, x0] * (1 - fx) + grid[:, y1, x1] * fx
-        out = top * (1 - fy) + bottom * fy
-        return out[0], out[1]
+        """Bilinear background and noise at pixel positions (arrays of equal shape; compiled)."""
+        return mesh_at(self.bg, self.noise, self.block_px, x_px, y_px)
 
     def on_grid(self, x_px, y_px):
         """Bilinear background and noise (len(y_px), len(x_px)) on the grid of columns ``x_px`` and rows ``y_px``."""
@@ -64,19 +59,35 @@ class Mesh:
 
     @property
     def background_adu(self) -> float:
-        return float(np.median(self.bg))
+        return median(self.bg)
 
     @property
     def noise_adu(self) -> float:
-        return float(np.median(self.noise))
+        return median(self.noise)
+
+
+def median(values) -> float:
+    """``np.median`` of the values of an array without NaN (the same value: the middle one, or
+    the mean of the two middle ones) at a fraction of its cost (~5 us against ~30 us)."""
+    x = np.asarray(values, dtype=float).reshape(-1)
+    n = x.size
+    k = n // 2
+    if n % 2:
+        return float(np.partition(x, k)[k])
+    part = np.partition(x, (k - 1, k))
+    return float((part[k - 1] + part[k]) / 2.0)
 
 
 def _interpolation_matrix(i0, i1, f, n):
     """(len(f), n) weights of linear interpolation between grid points ``i0`` and ``i1``."""
     w = np.zeros((len(f), n))
     rows = np.arange(len(f))
-    np.add.at(w, (rows, i0), 1.0 - f)
-    np.add.at(w, (rows, i1), f)
+    if n > 1:                                   # i1 = i0 + 1: plain assignments (np.add.at is slow)
+        w[rows, i0] = 1.0 - f
+        w[rows, i1] = f
+    else:
+        np.add.at(w, (rows, i0), 1.0 - f)
+        np.add.at(w, (rows, i1), f)
     return w
 
 
@@ -92,26 +103,6 @@ def _block_samples(image, block_px, step):
     return sub.reshape(n_by, b, n_bx, b).swapaxes(1, 2).reshape(n_by, n_bx, b * b)    # a copy, image's dtype
 
 
-def _median_and_mad(raw):
-    """(median, MAD) along the last axis of block samples (n_by, n_bx, k), float64.
-
-    Frames of <= 16-bit integers are sorted as integers (3 x faster than float64; the
-    deviations doubled, 2 |v - median|, are integers too): the same values exactly.
-    """
-    k = raw.shape[-1]
-    lo, hi = (k - 1) // 2, k // 2
-    if raw.dtype.kind in "ui" and raw.dtype.itemsize <= 2:
-        ordered = np.sort(raw, axis=-1)
-        two_med = ordered[..., lo].astype(np.int32) + ordered[..., hi]
-        two_dev = np.sort(np.abs(2 * raw.astype(np.int32) - two_med[..., None]), axis=-1)
-        return 0.5 * two_med.astype(np.float64), 0.25 * (two_dev[..., lo] + two_dev[..., hi]).astype(np.float64)
-    # float64: a float32 copy overflows to inf above 3.4e38, and the squared deviations of
-    # values above 1.8e19 overflow too (RuntimeWarnings, inf in the block statistics)
-    ordered = np.sort(raw.astype(np.float64), axis=-1)
-    med = 0.5 * (ordered[..., lo] + ordered[..., hi])
-    return med, _sorted_median(np.abs(raw - med[..., None]))
-
-
 def _value_step(samples):
     """Smallest difference between distinct sample values of a block: the quantisation step
     of a float frame holding integer counts (1), scaled counts (e.g. 1/4096) or none (~0).
@@ -122,13 +113,6 @@ def _value_step(samples):
     diff = np.diff(np.sort(samples, axis=-1), axis=-1)
     step = diff[diff > 0]
     return float(step.min()) if step.size else 0.0
-
-
-def _sorted_median(samples):
-    """Median along the last axis (a full sort of 64 values beats np.median's partition)."""
-    ordered = np.sort(samples, axis=-1)
-    k = ordered.shape[-1]
-    return 0.5 * (ordered[..., (k - 1) // 2] + ordered[..., k // 2])
 
 
 def estimate_mesh(image, *, block_px=32, quantum_adu=0.0, box_noise=True) -> Mesh:
@@ -150,26 +134,19 @@ def estimate_mesh(image, *, block_px=32, quantum_adu=0.0, box_noise=True) -> Mes
     -------
     Mesh
     """
-    from scipy.ndimage import median_filter
-
     height, width = image.shape
     block_px = int(max(4, min(block_px, min(height, width) // 2)))
     step = max(1, block_px // 8)
     block_px = (block_px // step) * step
-    raw = _block_samples(image, block_px, step)
-    med, mad = _median_and_mad(raw)
-    samples = raw.astype(np.float64)
+    samples = _block_samples(image, block_px, step).astype(np.float64)    # exact for any pixel value
     if quantum_adu == 0.0:                  # float frame: its step, if its values come in steps
         quantum_adu = _value_step(samples)
-    dev = samples - med[:, :, None]
-    clip = 3.0 * np.maximum(1.4826 * mad, quantum_adu)[:, :, None]
-    inside = np.abs(dev) <= clip
-    rms = np.sqrt(np.sum(np.where(inside, dev * dev, 0.0), axis=2) / np.maximum(inside.sum(axis=2), 1))
+    med, _, rms = block_stats(np.sort(samples, axis=-1), quantum_adu)   # NumPy's SIMD sort, then C
     floor = max(quantum_adu / np.sqrt(12.0), 1e-9 * max(1.0, float(np.max(np.abs(med)))))
     noise = np.maximum(rms * _CLIPPED_RMS_TO_SIGMA, floor)
     if min(med.shape) >= 3:
-        med = median_filter(med, size=3, mode="nearest")
-        noise = np.maximum(noise, median_filter(noise, size=3, mode="nearest"))
+        med = median3(med)
+        noise = np.maximum(noise, median3(noise))
     mesh = Mesh(bg=med.astype(float), noise=noise.astype(float), block_px=block_px, shape_hw=(height, width))
     return replace(mesh, box_noise_factor=_box_noise_factor(image, mesh)) if box_noise else mesh
 
@@ -187,5 +164,5 @@ def _box_noise_factor(image, mesh, max_samples=4096):
             total += image[dr + 1:height - 1 + dr:step, dc + 1:width - 1 + dc:step][:rows.size, :cols.size]
     bg, noise = mesh.on_grid(cols, rows)
     z = ((total - 9.0 * bg) / (3.0 * noise)).ravel()
-    z -= np.median(z)
-    return float(max(1.0, 1.4826 * np.median(np.abs(z))))
+    z -= median(z)
+    return float(max(1.0, 1.4826 * median(np.abs(z))))

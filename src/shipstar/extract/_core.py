@@ -175,7 +175,7 @@ def extract_stars(image, *, threshold_sigma=5.0, max_stars=None, refine="gaussia
         res, sigma = extract_smeared(arr, mesh, None, hint, sigma_given, inv_gain, saturation,
                                      float(threshold_sigma), refine)
         return _result(res, mesh, sigma, arr.shape, max_stars, hint)
-    peaks, labels_of_peaks, idx, labels, _ = detect_objects(arr, mesh, float(threshold_sigma))
+    peaks, labels_of_peaks, idx, labels = detect_objects(arr, mesh, float(threshold_sigma))
     stats = component_stats(arr, mesh, idx, labels, labels_of_peaks, saturation)
     sat_mask = (arr >= saturation) if (hint is None and n_sat) else None
     smear, sigma_s, gain_s = frame_smear(arr, mesh, stats, hint, sigma_given, inv_gain, sat_mask)

@@ -18,10 +18,14 @@ Cramer-Rao bound; without it the weights are uniform (exact for faint stars).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from shipstar.extract import _kernels
+from shipstar.extract._kernels import erf
 
 __all__ = [
     "Windows", "gather_windows", "fit_gaussian", "window_half_px", "estimate_psf_sigma",
@@ -78,8 +82,6 @@ def gather_windows(image, col, row, half, bg, noise) -> Windows:
 
 def _profile(centre, first, size, sigma):
     """Pixel fractions E and their derivatives in the centre and in sigma, each (M, size)."""
-    from scipy.special import erf
-
     s = sigma[:, None]
     u = first[:, None] - 0.5 + np.arange(size + 1) - centre[:, None]
     z = u / s
@@ -109,15 +111,6 @@ def _jacobian(p, win, fit_sigma):
         jac_t[:, 4] = (flux * (ds[n:, :, None] * ex + ey * ds[:n, None, :])).reshape(n, size * size)
     model = p[:, 3][:, None] + flux[:, :, 0] * jac_t[:, 2]
     return model, jac_t
-
-
-def _normal_equations(p, win, fit_sigma, inv_gain):
-    model, jac_t = _jacobian(p, win, fit_sigma)
-    var = win.noise[:, None] ** 2 + np.maximum(model - p[:, 3][:, None], 0.0) * inv_gain
-    jw_t = jac_t * (win.valid.reshape(len(p), win.size ** 2) / var)[:, None, :]
-    a = jw_t @ jac_t.transpose(0, 2, 1)
-    g = (jw_t @ (win.values.reshape(len(p), win.size ** 2) - model)[:, :, None])[:, :, 0]
-    return a, g
 
 
 def _cholesky(a):
@@ -186,7 +179,7 @@ def _spd_inverse(a):
 
 
 def fit_gaussian(win, p0, *, fit_sigma=False, inv_gain=0.0, tol_px=_CONVERGED_PX, tol_chi2=_CONVERGED_CHI2):
-    """Gauss-Newton fit of the pixel-integrated Gaussian on all windows at once.
+    """Gauss-Newton fit of the pixel-integrated Gaussian, star by star (compiled: :mod:`._kernels`).
 
     Parameters
     ----------
@@ -209,25 +202,9 @@ def fit_gaussian(win, p0, *, fit_sigma=False, inv_gain=0.0, tol_px=_CONVERGED_PX
     ok : (N,) bool
         Converged to a finite, plausible solution.
     """
-    p = np.array(p0, dtype=float)
-    k = 5 if fit_sigma else 4
+    p, step_norm = _kernels.gauss_fit(win, p0, fit_sigma=fit_sigma, inv_gain=inv_gain, tol_px=tol_px,
+                                      tol_chi2=tol_chi2, max_iterations=_MAX_ITERATIONS)
     centre = np.stack([win.x0, win.y0], axis=1) + (win.size - 1) / 2.0
-    step_norm = np.zeros(len(p))
-    active = np.arange(len(p))
-    for _ in range(_MAX_ITERATIONS):
-        a, g = _normal_equations(p[active], win.take(active), fit_sigma, inv_gain)
-        step = _spd_solve(a, g)
-        decrement = np.sum(step * g, axis=1)            # chi^2 decrease this step promises
-        step[:, :2] = np.clip(step[:, :2], -0.5, 0.5)
-        q = p[active]
-        q[:, :k] += step
-        q[:, 2] = np.maximum(q[:, 2], 1e-6 * np.abs(p0[active, 2]) + 1e-12)
-        q[:, 4] = np.clip(q[:, 4], *_SIGMA_RANGE_PX)
-        p[active] = q
-        step_norm[active] = np.hypot(step[:, 0], step[:, 1])
-        active = active[(step_norm[active] > tol_px) & (decrement > tol_chi2)]
-        if active.size == 0:
-            break
     ok = (np.all(np.isfinite(p), axis=1) & (step_norm < 1e-2)
           & np.all(np.abs(p[:, :2] - centre) <= _MAX_SHIFT_PX, axis=1)
           & (p[:, 4] > _SIGMA_RANGE_PX[0]) & (p[:, 4] < _SIGMA_RANGE_PX[1]))
@@ -312,6 +289,7 @@ def estimate_psf_sigma(image, col, row, bg, noise, *, inv_gain=None, max_stars=1
     return sigma, inv_gain
 
 
+@functools.lru_cache(maxsize=32)
 def neighbour_ratios(sigma_px: float) -> tuple[float, float]:
     """How much a star's neighbours hold at least, relative to its brightest pixel.
 
@@ -321,8 +299,6 @@ def neighbour_ratios(sigma_px: float) -> tuple[float, float]:
     (0, 0), a cosmic ray along a line of 2-3 pixels (>= 1, 0); sigma 0.8 px gives
     (3.0, 0.50), sigma 0.5 px (1.1, 0.09).
     """
-    from scipy.special import erf
-
     phase = np.linspace(0.0, 0.5, 11)
     u = np.array([-1.5, -0.5, 0.5, 1.5])[None, :] - phase[:, None]
     frac = np.diff(0.5 * erf(u / (_SQRT2 * sigma_px)), axis=1)      # (phases, 3): left, centre, right
@@ -338,5 +314,5 @@ def neighbour_ratios(sigma_px: float) -> tuple[float, float]:
 
 def covariance(win, p, *, inv_gain=0.0):
     """Cramer-Rao covariance (N, 4, 4) of (x, y, F, b) at parameters ``p`` (N, 5), sigma known."""
-    a, _ = _normal_equations(np.asarray(p, dtype=float), win, False, inv_gain)
+    a, _ = _kernels.gauss_normal(win, p, fit_sigma=False, inv_gain=inv_gain)
     return _spd_inverse(a)

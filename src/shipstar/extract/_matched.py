@@ -27,8 +27,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from shipstar.extract._background import Mesh, estimate_mesh
+from shipstar.extract._background import Mesh, estimate_mesh, median
 from shipstar.extract._detect import candidate_pixels, components, local_maxima, sum_dtype
+from shipstar.extract._kernels import suppress, tap_sum
 from shipstar.extract._scratch import scratch
 
 __all__ = ["LineFilter", "line_filter", "detect_streaks", "EXTENT_FACTOR"]
@@ -126,10 +127,7 @@ def line_filter(image, fill_value: float, lf: LineFilter, patch=None) -> np.ndar
             terms += [(both, sh) for sh, d in pairs if d == step]
     else:
         terms += [(across, sh) for sh, d in pairs] + [(across, sh + d) for sh, d in pairs]
-    (src, shift), rest = terms[0], terms[1:]
-    np.copyto(out[:span], src[shift:shift + span])
-    for src, shift in rest:
-        out[:span] += src[shift:shift + span]
+    tap_sum(terms, out, span)                   # out[:span] = the terms' sum, in their order, tile by tile
     s_image = scratch("line_filter.s", (height, width), dtype)
     np.copyto(s_image, out.reshape(height, wp)[:, :width])
     return s_image
@@ -146,41 +144,18 @@ def _filter_mesh(s_image, mesh) -> Mesh:
     """
     block = int(min(_S_BLOCK_PX, max(8, min(s_image.shape) // 4)))
     mesh_s = estimate_mesh(s_image, block_px=block, box_noise=False)
-    noise = np.maximum(mesh_s.noise, np.median(mesh_s.noise))
+    noise = np.maximum(mesh_s.noise, median(mesh_s.noise))
     return replace(mesh_s, noise=noise, box_noise_factor=1.0)
 
 
 def _suppress(xy, strength, lf: LineFilter, across_px: float) -> np.ndarray:
     """Indices (strongest first) of peaks not within the streak footprint of a stronger peak."""
-    from scipy.spatial import cKDTree
-
     order = np.argsort(-strength, kind="stable")
     if len(order) < 2:
         return order
-    along_px = lf.length_px + 1.5
     u = lf.smear_px / max(lf.length_px, 1e-12)
-    pairs = cKDTree(xy).query_pairs(math.hypot(along_px, across_px), output_type="ndarray")
-    if len(pairs) == 0:
-        return order
-    d = xy[pairs[:, 1]] - xy[pairs[:, 0]]
-    along = np.abs(d @ u)
-    across = np.abs(d[:, 0] * u[1] - d[:, 1] * u[0])
-    pairs = pairs[(along <= along_px) & (across <= across_px)]
-    rank = np.empty(len(order), dtype=np.int64)
-    rank[order] = np.arange(len(order))
-    strong = np.where(rank[pairs[:, 0]] < rank[pairs[:, 1]], pairs[:, 0], pairs[:, 1])
-    weak = np.where(rank[pairs[:, 0]] < rank[pairs[:, 1]], pairs[:, 1], pairs[:, 0])
     # greedy, strongest first: a peak is dropped only by a stronger peak that was kept
-    by_strong = np.argsort(rank[strong], kind="stable")
-    strong, weak = strong[by_strong], weak[by_strong]
-    dropped = np.zeros(len(order), dtype=bool)
-    starts = np.searchsorted(rank[strong], np.arange(len(order)))
-    ends = np.searchsorted(rank[strong], np.arange(len(order)), side="right")
-    for r in range(len(order)):
-        i = order[r]
-        if dropped[i] or starts[r] == ends[r]:
-            continue
-        dropped[weak[starts[r]:ends[r]]] = True
+    dropped = suppress(xy, order, u, lf.length_px + 1.5, across_px)
     return order[~dropped[order]]
 
 
@@ -199,7 +174,7 @@ def detect_streaks(image, mesh: Mesh, lf: LineFilter, threshold_sigma: float, se
     """
     s_image = line_filter(image, mesh.background_adu, lf, patch)
     mesh_s = _filter_mesh(s_image, mesh)
-    mask, idx = candidate_pixels(s_image, mesh_s, segment_sigma)
+    idx = candidate_pixels(s_image, mesh_s, segment_sigma)
     flat = s_image.reshape(-1)
     # the peaks that count are local maxima among the pixels >= threshold_sigma (bilinear mesh,
     # whose values are never below the lowest block's: a cheap first cut)
@@ -214,7 +189,7 @@ def detect_streaks(image, mesh: Mesh, lf: LineFilter, threshold_sigma: float, se
     xy = np.stack([col, row], axis=1).astype(float)
     kept = _suppress(xy, snr, lf, 2.5 + psf_sigma_px)
     peaks, row, col, snr = peaks[kept], row[kept], col[kept], snr[kept]
-    labels, n_labels = components(mask, idx, s_image.shape)
+    labels, n_labels = components(idx, s_image.shape)
     label = labels[np.searchsorted(idx, peaks)] if len(peaks) else np.zeros(0, dtype=np.int64)
     npix = np.bincount(labels, minlength=n_labels)
     extent = _component_extent(idx, labels, n_labels, s_image.shape[1], lf)[label]

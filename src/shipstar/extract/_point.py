@@ -58,10 +58,10 @@ ELONGATION_LIMIT = 2.0
 
 
 def detect_objects(arr, mesh, threshold_sigma):
-    """Star peaks (flat indices, one per component), their components, candidate indices and labels, mask."""
+    """Star peaks (flat indices, one per component), their components, candidate indices and labels."""
     shape = arr.shape
     flat = arr.reshape(-1)
-    mask, idx = candidate_pixels(arr, mesh, min(SEGMENT_SIGMA, threshold_sigma))
+    idx = candidate_pixels(arr, mesh, min(SEGMENT_SIGMA, threshold_sigma))
     peaks = local_maxima(flat, idx, shape)
     box, count = box_sums(flat, peaks, shape)
     row, col = np.divmod(peaks, shape[1])
@@ -71,12 +71,12 @@ def detect_objects(arr, mesh, threshold_sigma):
     star = (box_excess >= threshold_sigma * mesh.box_noise_factor * np.sqrt(count) * noise) & \
            (box_excess - peak_excess >= SINGLE_PIXEL_RATIO * peak_excess)
     peaks, box_excess = peaks[star], box_excess[star]
-    labels, _ = components(mask, idx, shape)
+    labels, _ = components(idx, shape)
     peak_label = labels[np.searchsorted(idx, peaks)]
     order = np.argsort(-box_excess, kind="stable")
     _, first = np.unique(peak_label[order], return_index=True)
     keep = np.sort(order[first])
-    return peaks[keep], peak_label[keep], idx, labels, mask
+    return peaks[keep], peak_label[keep], idx, labels
 
 
 def component_stats(arr, mesh, idx, labels, star_labels, saturation):

@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from shipstar.extract._background import estimate_mesh
+from shipstar.extract._background import estimate_mesh, median
 from shipstar.extract._detect import sum_dtype
 from shipstar.extract._fit import _spd_inverse, inv_gain_from_residuals
 from shipstar.extract._point import bright_objects, component_stats, detect_objects
@@ -93,8 +93,8 @@ def smear_from_moments(moments, flux, usable, npix):
     pick = pick[np.argsort(-flux[pick], kind="stable")][:15]
     if len(pick) < 3:
         return None
-    c = float(np.median(moments[pick, 0] - moments[pick, 1]))
-    s = float(np.median(2.0 * moments[pick, 2]))
+    c = median(moments[pick, 0] - moments[pick, 1])
+    s = median(2.0 * moments[pick, 2])
     length = math.sqrt(12.0 * math.hypot(c, s))
     theta = 0.5 * math.atan2(s, c)
     return np.array([length * math.cos(theta), length * math.sin(theta)])
@@ -114,7 +114,7 @@ def binned_guess(arr):
         for j in range(BIN_PX):
             binned += arr[i:height:BIN_PX, j:width:BIN_PX]
     mesh = estimate_mesh(binned, quantum_adu=1.0)
-    peaks, labels_of_peaks, idx, labels, _ = detect_objects(binned, mesh, _BINNED_SIGMA)
+    peaks, labels_of_peaks, idx, labels = detect_objects(binned, mesh, _BINNED_SIGMA)
     stats = component_stats(binned, mesh, idx, labels, labels_of_peaks, math.inf)
     usable = (stats["flags"] & FLAG_EDGE) == 0
     guess = smear_from_moments(stats["moments"], stats["cog_flux"], usable, np.maximum(stats["npix"], 9))
@@ -157,11 +157,11 @@ def calibrate(image, mesh, bad, col, row, smear, sigma, inv_gain, *, fit_smear):
             fitted = p[ok][:, DX:]
             fitted *= np.where(fitted @ smear < 0, -1.0, 1.0)[:, None]   # (dx, dy) and -(dx, dy): the same streak
             previous, smear = smear, np.median(fitted, axis=0)
-            spread = float(np.median(np.hypot(*(fitted - smear).T)))
+            spread = median(np.hypot(*(fitted - smear).T))
             n_ok = int(np.count_nonzero(ok))
             again = np.hypot(*(smear - previous)) > 0.1 * np.hypot(*previous) + 0.5   # windows were too small
         if fit_sigma:
-            sigma0 = sigma_out = float(np.median(p[ok, SIGMA]))
+            sigma0 = sigma_out = median(p[ok, SIGMA])
         if inv_gain is None:
             sel = np.flatnonzero(ok)
             _, _, model, jac_t = streak_normal_equations(p[sel], win.take(sel), nodes, fit_sigma=fit_sigma,

@@ -64,7 +64,7 @@ def sharp_pixels(image, mesh, too_sharp, segment_sigma=SEGMENT_SIGMA):
     """
     flat = image.reshape(-1)
     height, width = image.shape
-    _, idx = candidate_pixels(image, mesh, 3.5 * mesh.box_noise_factor)
+    idx = candidate_pixels(image, mesh, 3.5 * mesh.box_noise_factor)
     peaks = local_maxima(flat, idx, image.shape)
     row, col = np.divmod(peaks, width)
     bg, noise = mesh.at(col, row)

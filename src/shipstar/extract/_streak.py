@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from shipstar.extract import _kernels
 from shipstar.extract._fit import spd_solve
 from shipstar.extract._scratch import scratch
 
@@ -133,56 +134,30 @@ def _fraction_table(sigma_px: float):
 
     Rows: f = -1/2 .. 1/2 in ``_TABLE_STEPS`` steps; columns: its local pixels
     j = 0 .. 2 half (pixel rint(c) - half + j), half = ceil(``_LOCAL_SIGMAS`` sigma).
-    Returns (E, its row-to-row difference, dE/dc, its difference) and ``half`` (four
-    tables: a gather of a 9-value row is 4 x faster than of a 36-value one).
+    Returns the tables (4, ``_TABLE_STEPS`` + 1, 2 half + 1) -- E, its row-to-row
+    difference, dE/dc, its difference: linear interpolation between rows, error < 4e-7
+    of a point's flux for sigma >= 0.5 px -- and ``half``. The compiled model
+    (:mod:`shipstar.extract._kernels`) reads them.
     """
-    from scipy.special import ndtr
-
     half = int(math.ceil(_LOCAL_SIGMAS * sigma_px))
     f = np.linspace(-0.5, 0.5, _TABLE_STEPS + 1)[:, None]
     z = (np.arange(2 * half + 2) - half - 0.5 - f) / sigma_px
     pdf = np.exp(-0.5 * z * z) / (_SQRT2PI * sigma_px)
-    frac, d_centre = np.diff(ndtr(z), axis=1), pdf[:, :-1] - pdf[:, 1:]
-    out = [frac, np.diff(frac, axis=0, append=frac[-1:]), d_centre, np.diff(d_centre, axis=0, append=d_centre[-1:])]
-    for arr in out:
-        arr.setflags(write=False)
+    cdf = 0.5 * _kernels.erf(z * (1.0 / _SQRT2))                   # Phi(z) - 1/2: its differences
+    frac, d_centre = np.diff(cdf, axis=1), pdf[:, :-1] - pdf[:, 1:]
+    out = np.stack([frac, np.diff(frac, axis=0, append=frac[-1:]), d_centre,
+                    np.diff(d_centre, axis=0, append=d_centre[-1:])])
+    out.setflags(write=False)
     return out, half
 
 
-def _tabulated_profiles(cx, cy, x0, y0, wx, wy, sigma_px, weight):
-    """E and dE/dcentre of points ``cx``, ``cy`` (N, n) on the window's columns and rows.
-
-    Returns ``ex`` (2, N, n, wx) and ``eyt`` (2, N, wy, n), the latter transposed and
-    multiplied by the points' ``weight`` (n,), as the model's products want them. One PSF
-    sigma for all: linear interpolation in a table of ``_TABLE_STEPS`` rows per pixel
-    (:func:`_fraction_table`; error < 4e-7 of a point's flux for sigma >= 0.5 px, against
-    ~40 ns a value for ``erf``). Each point's +-``_LOCAL_SIGMAS`` sigma pixels are written
-    into work arrays with ``half`` spare columns (rows) on either side, where the pixels
-    off the window land (clipped there): no masking; the results are views without them.
-    """
-    (frac, dfrac, dc, ddc), half = _fraction_table(float(sigma_px))
-    n_star, n_pt = cx.shape
-    m_pts = n_star * n_pt
-    local = np.arange(2 * half + 1)
-    out = []
-    for k, (c, first, size) in enumerate(((cx, x0, wx), (cy, y0, wy))):
-        near = np.rint(c)
-        pos = (c - near + 0.5) * _TABLE_STEPS
-        i = np.minimum(pos.astype(np.intp), _TABLE_STEPS - 1).reshape(-1)
-        w = (pos.reshape(-1) - i)[:, None]
-        padded = size + 2 * half
-        cols = np.clip((near.astype(np.intp) - first[:, None]).reshape(-1, 1) + local, 0, padded - 1)  # + half - half
-        values = np.stack([frac[i] + w * dfrac[i], dc[i] + w * ddc[i]])                  # (2, N n, 2 half + 1)
-        buf = scratch(f"streak.profile{k}", (2, m_pts * padded), float)
-        buf.fill(0.0)
-        if k == 0:                                          # (N, n, padded): row per point
-            buf[:, (np.arange(m_pts)[:, None] * padded + cols)] = values
-            out.append(buf.reshape(2, n_star, n_pt, padded)[..., half:half + size])
-        else:                                               # (N, padded, n): column per point, weighted
-            star, point = np.divmod(np.arange(m_pts), n_pt)
-            buf[:, ((star * padded)[:, None] + cols) * n_pt + point[:, None]] = values * np.tile(weight, n_star)[:, None]
-            out.append(buf.reshape(2, n_star, padded, n_pt)[:, :, half:half + size])
-    return out[0], out[1]
+def _common_sigma(p, fit_sigma):
+    """The PSF sigma shared by all stars of ``p`` (N, 7) when the compiled model applies (not
+    fitted, one for all), else None."""
+    if fit_sigma or len(p) == 0:
+        return None
+    sigma = p[:, SIGMA]
+    return float(sigma[0]) if np.ptp(sigma) == 0 else None
 
 
 def start_parameters(win, col, row, sigma, smear):
@@ -224,12 +199,10 @@ def start_parameters(win, col, row, sigma, smear):
 def _axis_profiles(centre, first, size, sigma, want_sigma):
     """Pixel fractions of points ``centre`` (N, n) in windows of ``size`` pixels from ``first`` (N,).
 
-    Per-star sigma (``erf`` on the fly; :func:`_tabulated_profiles` for a common one).
+    Per-star sigma (``erf`` on the fly; a common one: the compiled model, :mod:`._kernels`).
     Returns E, dE/dcentre and (if ``want_sigma``) dE/dsigma, each (N, n, size). Only
     each point's own +-``_LOCAL_SIGMAS`` sigma pixels are computed.
     """
-    from scipy.special import erf
-
     n_star, n_pt = centre.shape
     half = int(math.ceil(_LOCAL_SIGMAS * float(np.max(sigma))))
     m = 2 * half + 1
@@ -238,7 +211,7 @@ def _axis_profiles(centre, first, size, sigma, want_sigma):
     s = sigma[:, None, None]
     z = ((near - centre)[:, :, None] - half - 0.5 + np.arange(m + 1)) / s
     pdf = np.exp(-0.5 * z * z) / (_SQRT2PI * s)
-    cdf = 0.5 * erf(z * (1.0 / _SQRT2))
+    cdf = 0.5 * _kernels.erf(z * (1.0 / _SQRT2))
     parts = [np.diff(cdf, axis=2), pdf[:, :, :-1] - pdf[:, :, 1:]]
     if want_sigma:
         upd = z * pdf
@@ -255,7 +228,8 @@ def _axis_profiles(centre, first, size, sigma, want_sigma):
 
 
 def _jacobian(p, win, nodes, fit_sigma, fit_smear):
-    """Model (N, P) and transposed Jacobian (N, k, P) on the flattened windows.
+    """Model (N, P) and transposed Jacobian (N, k, P) on the flattened windows, per-star or
+    fitted sigma (``erf`` on the fly; a common, known sigma: the compiled model).
 
     The Jacobian is a work array (:mod:`shipstar.extract._scratch`): valid until the next call.
     """
@@ -266,11 +240,8 @@ def _jacobian(p, win, nodes, fit_sigma, fit_smear):
     cx = p[:, X, None] + t[None, :] * p[:, DX, None]
     cy = p[:, Y, None] + t[None, :] * p[:, DY, None]
     x0, y0 = win.x0.astype(np.intp), win.y0.astype(np.intp)
-    if fit_sigma or np.ptp(sigma) > 0:
-        ex = _axis_profiles(cx, x0, wx, sigma, fit_sigma)
-        eyt = [(e * w[None, :, None]).transpose(0, 2, 1) for e in _axis_profiles(cy, y0, wy, sigma, fit_sigma)]
-    else:
-        ex, eyt = _tabulated_profiles(cx, cy, x0, y0, wx, wy, sigma[0], w)     # eyt: (N, Wy, n), weighted
+    ex = _axis_profiles(cx, x0, wx, sigma, fit_sigma)
+    eyt = [(e * w[None, :, None]).transpose(0, 2, 1) for e in _axis_profiles(cy, y0, wy, sigma, fit_sigma)]
     flux = p[:, FLUX, None, None]
     k = 4 + int(fit_sigma) + 2 * int(fit_smear)
     jac_t = scratch("streak.jacobian", (n_star, k, wy, wx), float)
@@ -302,6 +273,12 @@ def streak_normal_equations(p, win, nodes, *, fit_sigma=False, fit_smear=False, 
 
 def _normal_equations(p, win, nodes, fit_sigma, fit_smear, inv_gain):
     """:func:`streak_normal_equations` and the pixel variances (N, P) it weighted with."""
+    sigma = _common_sigma(p, fit_sigma)
+    if sigma is not None:
+        table, half = _fraction_table(sigma)
+        a, g, model, var, jac_t = _kernels.streak_equations(p, win, nodes, table, half, fit_smear=fit_smear,
+                                                            inv_gain=inv_gain)
+        return a, g, model, jac_t, var
     model, jac_t = _jacobian(p, win, nodes, fit_sigma, fit_smear)
     n_star = len(p)
     var = win.noise[:, None] ** 2 + np.maximum(model - p[:, BG, None], 0.0) * inv_gain
@@ -367,6 +344,13 @@ def fit_streaks(win, p0, nodes, *, fit_sigma=False, fit_smear=False, inv_gain=0.
     free = [X, Y, FLUX, BG] + ([SIGMA] if fit_sigma else []) + ([DX, DY] if fit_smear else [])
     wy, wx = win.shape
     limit = np.array([wx, wy]) / 4.0 if max_shift_px is None else np.asarray(max_shift_px, float)
+    sigma = _common_sigma(p, fit_sigma)
+    if sigma is not None:                 # a common, known sigma: the compiled fit, star by star
+        table, half = _fraction_table(sigma)
+        p, converged, a, model = _kernels.streak_fit(
+            p, win, nodes, table, half, fit_smear=fit_smear, inv_gain=inv_gain, max_iterations=max_iterations,
+            tol_px=tol_px, converged_fraction=converged_fraction, converged_chi2=_CONVERGED_CHI2)
+        return StreakFit(p=p, ok=converged & _plausible(p, win, limit), normal=a, model=model)
     state = _LMState(p, win, nodes, dict(fit_sigma=fit_sigma, fit_smear=fit_smear, inv_gain=inv_gain), free)
     converged = np.zeros(len(p), dtype=bool)
     active = np.arange(len(p))
@@ -388,10 +372,13 @@ def fit_streaks(win, p0, nodes, *, fit_sigma=False, fit_smear=False, inv_gain=0.
         if active.size:
             state.try_(active, trial)
     p = state.p
-    ok = (converged & np.all(np.isfinite(p), axis=1)
-          & np.all(np.abs(p[:, :2] - win.centre) <= limit, axis=1)
-          & (p[:, SIGMA] > _SIGMA_RANGE_PX[0]) & (p[:, SIGMA] < _SIGMA_RANGE_PX[1]))
-    return StreakFit(p=p, ok=ok, normal=state.a, model=state.model)
+    return StreakFit(p=p, ok=converged & _plausible(p, win, limit), normal=state.a, model=state.model)
+
+
+def _plausible(p, win, limit):
+    """(N,) bool: finite parameters, the centre within ``limit`` (x, y) of the window's, sigma in range."""
+    return (np.all(np.isfinite(p), axis=1) & np.all(np.abs(p[:, :2] - win.centre) <= limit, axis=1)
+            & (p[:, SIGMA] > _SIGMA_RANGE_PX[0]) & (p[:, SIGMA] < _SIGMA_RANGE_PX[1]))
 
 
 class _LMState:

@@ -6,6 +6,7 @@ Public API::
     identify_lost_in_space(stars, database, ...) -> Identification      # no prior
     identify_tracking(stars, database, C_icrs_from_sensor_prior, ...) -> Identification
     solve_image(image, camera=None, fov_deg=None, ...) -> SolveResult    # extract + identify
+    solve_centroids(xy_px, image_shape_hw, camera=None, fov_deg=None, ...) -> SolveResult
     deep_match(stars, sigma_px, identification, deep_catalog(database), epoch_jyear=...)
         -> DeepMatch                                                    # name every other star
 
@@ -24,15 +25,23 @@ import numpy as np
 
 from shipstar.errors import ShipstarError
 from shipstar.identify._database import DatabaseParams, StarDatabase, cached_database, params_for_field
-from shipstar.identify._deep import DeepMatch, deep_catalog, deep_match
 from shipstar.identify._result import Identification, failed_identification
-from shipstar.identify._solve import SolveResult, solve_image
+from shipstar.identify._solve import SolveResult, solve_centroids, solve_image
 from shipstar.identify._tracking import tracking
 from shipstar.units import DEG2RAD
 
 __all__ = ["StarDatabase", "DatabaseParams", "Identification", "SolveResult", "build_database",
-           "identify_lost_in_space", "identify_tracking", "solve_image",
+           "identify_lost_in_space", "identify_tracking", "solve_image", "solve_centroids",
            "DeepMatch", "deep_match", "deep_catalog"]
+
+
+def __getattr__(name):
+    """The deep matcher is imported on first use (``shipstar solve`` does not need it)."""
+    if name in ("DeepMatch", "deep_match", "deep_catalog"):
+        from shipstar.identify import _deep
+
+        return getattr(_deep, name)
+    raise AttributeError(f"module 'shipstar.identify' has no attribute {name!r}")
 
 
 def _is_camera(obj) -> bool:

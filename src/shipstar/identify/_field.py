@@ -164,9 +164,15 @@ def camera_bounds(camera) -> np.ndarray:
     hit = _BOUNDS_CACHE.get(key)
     if hit is not None and hit[0] is camera:
         return hit[1]
-    edge = camera.unproject(_corner_points(camera.width_px, camera.height_px))
-    te = edge[:, 1:] / edge[:, :1]
-    bounds = np.array([te[:, 0].min(), te[:, 0].max(), te[:, 1].min(), te[:, 1].max()])
+    if camera.distortion.is_zero:           # a pinhole: the edges' tangent-plane lines
+        scale = camera.pixel_mm / camera.f_mm
+        x0, y0 = camera.x0_px, camera.y0_px
+        bounds = np.array([-(camera.height_px - 0.5 - y0) * scale, (y0 + 0.5) * scale,
+                           -(x0 + 0.5) * scale, (camera.width_px - 0.5 - x0) * scale])
+    else:
+        edge = camera.unproject(_corner_points(camera.width_px, camera.height_px))
+        te = edge[:, 1:] / edge[:, :1]
+        bounds = np.array([te[:, 0].min(), te[:, 0].max(), te[:, 1].min(), te[:, 1].max()])
     bounds.setflags(write=False)
     if len(_BOUNDS_CACHE) > 32:
         _BOUNDS_CACHE.clear()
@@ -178,6 +184,16 @@ def field_from_camera(xy_px, camera, *, error_px: float, focal_tolerance: float 
     """Field from pixel centroids ``(N, 2)`` and a calibrated :class:`~shipstar.camera.Camera`."""
     xy = _check_rows(xy_px, 2, "xy_px")
     error_px = _check_error(error_px, "centroid_error_px")
+    if camera.distortion.is_zero:            # compiled: the same arithmetic, one call
+        from shipstar.identify._kernels import pinhole_unproject
+
+        u, t, finite = pinhole_unproject(xy, camera.x0_px, camera.y0_px, camera.pixel_mm,
+                                         camera.f_mm)
+        if finite:
+            return StarField(t=t, bounds=camera_bounds(camera),
+                             error_rad=error_px * camera.pixel_mm / camera.f_mm,
+                             focal_tolerance=_check_tolerance(focal_tolerance), bad_rows=_NO_ROWS,
+                             xy_px=xy, u0=u)
     if math.isfinite(xy.sum()):              # one reduction: every value finite
         u = camera.unproject(xy)
         t = u[:, 1:] / u[:, :1]

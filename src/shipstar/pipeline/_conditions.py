@@ -93,18 +93,29 @@ class NoiseFloor:
             return math.nan
         r2 = np.concatenate([r for r, _ in self._frames])
         cr2 = np.concatenate([c for _, c in self._frames])
-        if np.median(r2 / np.maximum(cr2, 1e-12)) <= _LN2x2:
+        if _median(r2 / np.maximum(cr2, 1e-12)) <= _LN2x2:
             self._cache = 0.0
             return 0.0
         lo, hi = 0.0, float(np.max(r2))
         for _ in range(40):
             mid = 0.5 * (lo + hi)
-            if np.median(r2 / (cr2 + mid)) > _LN2x2:
+            if _median(r2 / (cr2 + mid)) > _LN2x2:
                 lo = mid
             else:
                 hi = mid
         self._cache = math.sqrt(0.5 * (lo + hi))
         return self._cache
+
+
+def _median(x) -> float:
+    """``np.median`` of a 1-D array without NaN (the same value: the middle element, or the mean
+    of the two middle ones), at a fifth of its cost: the bisection above takes 40 a frame."""
+    n = x.size
+    k = n // 2
+    if n % 2:
+        return float(np.partition(x, k)[k])
+    part = np.partition(x, (k - 1, k))
+    return float((part[k - 1] + part[k]) / 2.0)
 
 
 class ConditionMonitor:

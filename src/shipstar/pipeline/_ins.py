@@ -55,7 +55,7 @@ from shipstar.errors import ShipstarError
 from shipstar.units import ASEC2RAD, DAY_S, RAD2ASEC, RAD2DEG
 
 __all__ = ["InsModel", "StarRows", "InsSolution", "estimate_ins", "INS_CSV_COLUMNS", "write_ins_csv", "ForwardIns",
-           "misalignment_jacobian"]
+           "misalignment_jacobian", "interpolate_cubic"]
 
 _H_S = 3600.0
 _NX = 8
@@ -113,31 +113,98 @@ class InsModel:
 class StarRows:
     """The joint star attitudes of a session, collected from the engine's emissions
     (``write``, as :class:`~shipstar.pipeline._measure.run_measure`'s monitor hook) or
-    given as arrays; compact (80 bytes an epoch)."""
+    given as arrays; compact (80 bytes an epoch).
 
-    def __init__(self):
+    ``spool`` (``measure --ins``: ``OUT.ins-stars``): each epoch is also appended to this
+    file (10 float64: ``t_s``, heading, pitch, roll (rad), the covariance's
+    ``xx yy zz xy xz yz`` (rad^2)), flushed to disk at each checkpoint (``flush``), so that
+    a stopped run's epochs survive it (opened, and emptied, at the first epoch or
+    checkpoint: a run refused before its first epoch leaves nothing behind).
+    ``resume=True`` reads them back (a torn last
+    record, after a crash, is dropped) and, at the first epoch the resumed run gives out,
+    forgets those at or after its time (the run re-emits them): the rows are then exactly
+    an uninterrupted run's, and the INS filter runs over the whole session at the end.
+    """
+
+    _FIELDS = 10
+
+    def __init__(self, spool=None, *, resume: bool = False):
+        from pathlib import Path
+
         self._t, self._a, self._c = [], [], []
+        self._fh = None
+        self._cut_at_next_epoch = False
+        self.spool = None if spool is None else Path(spool)
+        if self.spool is None:
+            return
+        if resume:
+            if not self.spool.is_file():
+                raise ShipstarError(f"--resume with --ins: {self.spool.name} (the star attitudes of the stopped run) "
+                                    f"is missing: was the stopped run given --ins?  Run again without --resume")
+            raw = self.spool.read_bytes()
+            n = len(raw) // (8 * self._FIELDS)
+            x = np.frombuffer(raw[:n * 8 * self._FIELDS], "<f8").reshape(n, self._FIELDS)
+            self._t = x[:, 0].tolist()
+            self._a = [tuple(r) for r in x[:, 1:4].tolist()]
+            self._c = [tuple(r) for r in x[:, 4:].tolist()]
+            self._fh = open(self.spool, "r+b")
+            self._fh.truncate(n * 8 * self._FIELDS)
+            self._fh.seek(n * 8 * self._FIELDS)
+            self._cut_at_next_epoch = True
+
+    def _open(self) -> None:
+        if self._fh is None and self.spool is not None:
+            self._fh = open(self.spool, "wb")
 
     def write(self, emission) -> None:
         e = getattr(emission, "epoch", None)
-        if e is None or not e.joint.solved:
+        if e is None:
+            return
+        self._open()
+        if self._cut_at_next_epoch:
+            self._cut(e.t_s)
+        if not e.joint.solved:
             return
         c = np.asarray(e.joint.covariance_rad2, float)
         if not np.all(np.isfinite(c)):
             return
         self.add(e.t_s, (e.joint.heading_rad, e.joint.pitch_rad, e.joint.roll_rad), c)
 
+    def _cut(self, t_s: float) -> None:
+        """Forget the epochs at or after ``t_s`` (a resumed run gives them out again)."""
+        self._cut_at_next_epoch = False
+        k = int(np.searchsorted(np.asarray(self._t, float), float(t_s) - 1e-9))
+        del self._t[k:], self._a[k:], self._c[k:]
+        if self._fh is not None:
+            self._fh.truncate(k * 8 * self._FIELDS)
+            self._fh.seek(k * 8 * self._FIELDS)
+
     def add(self, t_s: float, angles_rad, covariance_rad2) -> None:
         self._t.append(float(t_s))
         self._a.append(tuple(float(x) for x in angles_rad))
         c = np.asarray(covariance_rad2, float)
         self._c.append((c[0, 0], c[1, 1], c[2, 2], c[0, 1], c[0, 2], c[1, 2]))
+        self._open()
+        if self._fh is not None:
+            self._fh.write(np.array([self._t[-1], *self._a[-1], *self._c[-1]], "<f8").tobytes())
 
     def flush(self) -> None:
-        pass
+        self._open()
+        if self._fh is not None and not self._fh.closed:
+            import os
+
+            self._fh.flush()
+            os.fsync(self._fh.fileno())
 
     def close(self) -> None:
-        pass
+        if self._fh is not None and not self._fh.closed:
+            self._fh.close()
+
+    def discard(self) -> None:
+        """Close and delete the spool file (the run is complete)."""
+        self.close()
+        if self.spool is not None:
+            self.spool.unlink(missing_ok=True)
 
     def __len__(self) -> int:
         return len(self._t)
@@ -238,6 +305,11 @@ def _cubic(t_rec, y_rec, t):
     span = t_rec[k] - t_rec[k - 1]
     inside = (t >= t_rec[0]) & (t <= t_rec[-1])
     return y, dy, np.where(inside, span, np.inf), np.sum(L * L, 1)
+
+
+#: ``(y (N, 3), dy/dt (N, 3), span_s (N,) of the 2 rows around each time (inf outside),
+#: sum of squared weights (N,))``: cubic Lagrange through the 4 rows around each time.
+interpolate_cubic = _cubic
 
 
 def _phi(dt_h: float) -> np.ndarray:

@@ -35,7 +35,8 @@ import numpy as np
 from shipstar.errors import ShipstarError
 
 __all__ = ["CHUNK_S", "WARMUP_S", "ENGINE_WARMUP_S", "MeasureJob", "MeasureOutcome", "WorkerPool", "run_measure",
-           "resume_path", "RESUME_VERSION", "default_workers", "one_blas_thread_for_children"]
+           "resume_path", "RESUME_VERSION", "default_workers", "one_blas_thread_for_children", "process_chunk",
+           "task_order"]
 
 #: Length of a processing chunk (s).
 CHUNK_S = 60.0
@@ -155,7 +156,7 @@ def _init_worker(job: MeasureJob, queue) -> None:
 BATCH_FRAMES = 20
 
 
-def _process(job: MeasureJob, sensor: int, piece, lo: int, keep_from: int, batch: int):
+def process_chunk(job: MeasureJob, sensor: int, piece, lo: int, keep_from: int, batch: int):
     """Frames ``lo ..`` of one sensor through a fresh processor; yields lists of
     ``(result, warnings)`` for frames ``keep_from ..`` (``batch`` at a time).  Each warning
     message is attached to the first result at or after the frame where it arose, so it
@@ -192,7 +193,7 @@ _QUEUE = None
 def _task(k: int, sensor: int, piece, lo: int, keep_from: int) -> None:
     """A worker's task ``k``: its results go to the pool's queue as ``(k, items, done)``."""
     items = []
-    for items in _process(_JOB, sensor, piece, lo, keep_from, BATCH_FRAMES):
+    for items in process_chunk(_JOB, sensor, piece, lo, keep_from, BATCH_FRAMES):
         _QUEUE.put((k, items, False))
     _QUEUE.put((k, [], True))
 
@@ -230,6 +231,12 @@ def _plan(times_s: list, chunk_s: float) -> list:
             row.append(_Chunk(j, s, *(int(i) for i in idx)))
         plan.append(row)
     return plan
+
+
+def task_order(plan: list, first_chunk: int = 0) -> list:
+    """The tasks (:class:`_Chunk`) from chunk ``first_chunk`` on, in the order their results
+    are merged (chunk by chunk, sensors in order); task ``k`` of a run is ``order[k]``."""
+    return [c for row in plan[first_chunk:] for c in row]
 
 
 def _fingerprint(job: MeasureJob, sources, chunk_s: float) -> dict:
@@ -324,7 +331,7 @@ class _Runner:
 
     def __init__(self, job: MeasureJob, sources, plan, workers, first_chunk: int):
         self.job, self.sources, self.plan = job, sources, plan
-        self.order = [c for row in plan[first_chunk:] for c in row]
+        self.order = task_order(plan, first_chunk)
         self.workers = workers                       # WorkerPool or None
         n = workers.workers if workers is not None else 1
         self.ahead = max(2 * len(sources), n + 1)
@@ -350,8 +357,8 @@ class _Runner:
             k = ks[0]
             c = self.order[k]
             if k not in self.local:
-                self.local[k] = _process(self.job, c.sensor, self.sources[c.sensor].piece(c.lo, c.hi), c.lo,
-                                         c.keep_from, 1 << 30)
+                self.local[k] = process_chunk(self.job, c.sensor, self.sources[c.sensor].piece(c.lo, c.hi),
+                                              c.lo, c.keep_from, 1 << 30)
             items = next(self.local[k])
             del self.local[k]                     # one batch: the whole task
             return k, items, True
@@ -383,7 +390,8 @@ class _Runner:
 
 
 def run_measure(job: MeasureJob, sources, out, *, truth=None, comments=(), workers=1, resume: bool = False,
-                chunk_s: float = CHUNK_S, progress=None, stop=None, monitor=None, observer=None) -> MeasureOutcome:
+                chunk_s: float = CHUNK_S, progress=None, stop=None, monitor=None, observer=None,
+                tasks=None) -> MeasureOutcome:
     """Process a whole session in chunks, writing the attitude CSV as it goes.
 
     Parameters
@@ -413,6 +421,13 @@ def run_measure(job: MeasureJob, sources, out, *, truth=None, comments=(), worke
         :class:`~shipstar.pipeline._mounts.MonitorCsvWriter`).
     observer : object with ``write(emission)``, ``flush()``, ``close()``, optional
         Given every emission written (``measure --ins`` collects the joint attitudes).
+    tasks : callable(job, sources, order) -> runner, optional
+        Runs the tasks elsewhere instead of ``workers`` (``shipstar measure-archive``:
+        :class:`shipstar.pipeline._archive.DaskTasks`): ``order`` is :func:`task_order`'s
+        list; the runner's ``next_batch(ks, stop)`` gives ``(k, items, done)`` for one of
+        the tasks ``ks`` (items as :func:`process_chunk` yields them) or None when ``stop``
+        was set while waiting, and ``close(abort)`` ends it.  An exception it raises ends
+        the run with ``OUT.partial`` and the checkpoint of the last complete chunk kept.
 
     Returns
     -------
@@ -444,9 +459,12 @@ def run_measure(job: MeasureJob, sources, out, *, truth=None, comments=(), worke
         first_chunk, resume_t, n_written = 0, None, 0
     total = sum(len(t) for t in times_s)
     done = sum(c.first for c in plan[first_chunk]) if resume else 0
-    if not isinstance(workers, WorkerPool):
-        workers = WorkerPool(job, workers) if int(workers) > 1 else None
-    runner = _Runner(job, sources, plan, workers, first_chunk)
+    if tasks is not None:
+        runner = tasks(job, sources, task_order(plan, first_chunk))
+    else:
+        if not isinstance(workers, WorkerPool):
+            workers = WorkerPool(job, workers) if int(workers) > 1 else None
+        runner = _Runner(job, sources, plan, workers, first_chunk)
     if monitor is not None:
         from shipstar.pipeline._mounts import MonitorCsvWriter
 

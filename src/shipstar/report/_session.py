@@ -51,7 +51,7 @@ def _minus_joint(result, methods) -> list:
     return out
 
 
-def session_report(result, path, *, truth=None, title: str = "shipstar session report"):
+def session_report(result, path, *, truth=None, ins=None, title: str = "shipstar session report"):
     """Write a self-contained HTML report of a processed session.
 
     Parameters
@@ -61,6 +61,9 @@ def session_report(result, path, *, truth=None, title: str = "shipstar session r
         The HTML file to write.
     truth : shipstar.pipeline.TruthTable, optional
         True ship attitude (simulated sessions): errors are plotted and tabulated.
+    ins : shipstar.pipeline._ins.InsSolution, optional
+        The INS calibrated against this session's stars (``estimate_ins``): a section
+        "Inertial navigator (INS)" (report._ins_plot.ins_section; against ``truth`` when given).
     title : str
 
     Returns
@@ -109,4 +112,8 @@ def session_report(result, path, *, truth=None, title: str = "shipstar session r
     from shipstar.report._conditions_plot import conditions_section, monitor_series
 
     conditions_section(rep, summary, monitor_series(result) if len(result.sensors) > 1 else None)
+    if ins is not None:
+        from shipstar.report._ins_plot import ins_section, true_attitude_at
+
+        ins_section(rep, ins, true_attitude_rad=None if truth is None else true_attitude_at(ins, truth))
     return rep.write(path)

@@ -16,7 +16,6 @@ import hashlib
 import os
 import pathlib
 import warnings
-import zipfile
 from dataclasses import dataclass
 
 import numpy as np
@@ -346,6 +345,8 @@ def _cache_file(prefix: str, key: str) -> pathlib.Path:
 
 def _read_npz(path: pathlib.Path, key: str) -> StarCatalog | None:
     """The catalog stored at ``path`` if it exists, is readable and has this key."""
+    import zipfile                      # here: `shipstar solve` reads no catalog
+
     try:
         with np.load(path, allow_pickle=False) as z:
             if str(z["key"]) != key:

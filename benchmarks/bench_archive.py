@@ -1,0 +1,132 @@
+"""``shipstar measure-archive`` on a LocalCluster of 1 and 2 workers against serial ``shipstar measure``.
+
+One rendered sea session (``simulate-session --kind sea``: 1024 x 1024 FITS, both sensors
+at 10 frames/s, ``--duration-s`` long, default 90 s = 1800 frames, 3.8 GB; written once to
+``--dir`` and kept, or to a temporary directory) is processed, in each repeat, by
+
+- ``shipstar measure --workers 1`` (the anchor: one process, no Dask);
+- ``shipstar measure-archive --workers 1`` and ``--workers 2`` (a LocalCluster of that many
+  worker processes, one thread each, started by the command), in alternating order;
+- ``shipstar measure --workers 2`` (the forked pool of ``measure``, for comparison),
+
+all with the same ``--chunk-s`` (default 30 s: 3 chunks per sensor, 6 tasks).  Each run is a
+separate command; printed per run are the wall time of the whole command and, for the
+archive runs, the processing time after the cluster is up (``--json``'s ``wall.process_s``:
+it still includes each worker's first load of the catalog and star database).  Then the
+medians over ``--repeat`` and the ratios: 2 against 1 archive workers (target >= 1.8x on
+this 2-core machine), serial measure against 2 archive workers, and whether every CSV
+is byte-identical to serial measure's (md5).
+
+The host is shared: the load average is printed before and after; take the medians.
+
+Run: ``python benchmarks/bench_archive.py [--dir DIR] [--duration-s 90] [--chunk-s 30]
+[--repeat 3]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+
+def render(root: Path, duration_s: float) -> None:
+    """The session and its installation files (once)."""
+    from shipstar.calibrate.installation import Installation, save_installation
+    from shipstar.simulate._session import sea_session, write_session
+
+    spec = sea_session(duration_s=duration_s)
+    n = len(spec.times_s(spec.sensors[0]))
+    if not (root / "sea" / "session.toml").exists() or len(list((root / "sea" / "A1").glob("*.fits"))) != n:
+        t0 = time.perf_counter()
+        if (root / "sea").exists():
+            import shutil
+
+            shutil.rmtree(root / "sea")
+        write_session(spec, root / "sea")
+        print(f"rendered {2 * n} frames in {time.perf_counter() - t0:.0f} s", flush=True)
+    for s in spec.sensors:
+        save_installation(Installation.from_matrix(s.name, s.camera.name, s.C_deck_from_sensor),
+                          root / f"{s.name}.toml")
+
+
+ARGS = ["--sensor", "A1=sea/A1", "--sensor", "A2=sea/A2", "--install", "A1.toml", "A2.toml",
+        "--track", "sea/track.csv", "--weather", "sea/weather.csv"]
+
+
+def run(root: Path, name: str, command: str, workers: int, chunk_s: float) -> dict:
+    out = root / "out" / f"{name}.csv"
+    for p in (out, out.with_name(out.name + ".partial"), out.with_name(out.name + ".resume")):
+        p.unlink(missing_ok=True)
+    cmd = [sys.executable, "-m", "shipstar", command, *ARGS, "--out", str(out), "--workers", str(workers),
+           "--chunk-s", str(chunk_s), "--json"]
+    import resource
+
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, cwd=root, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)      # the command and its workers
+    if proc.returncode != 0:
+        raise SystemExit(f"{name}: exit {proc.returncode}: {proc.stderr[-3000:]}")
+    summary = json.loads(proc.stdout)
+    process_s = summary["wall"]["process_s"] if "wall" in summary else wall
+    md5 = hashlib.md5(out.read_bytes()).hexdigest()
+    return {"wall_s": wall, "process_s": process_s, "cpu_s": cpu, "md5": md5}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--dir", help="work directory (the session is rendered once and kept)")
+    ap.add_argument("--duration-s", type=float, default=90.0)
+    ap.add_argument("--chunk-s", type=float, default=30.0)
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--no-measure-pool", action="store_true", help="skip 'measure --workers 2'")
+    a = ap.parse_args(argv)
+    root = Path(a.dir) if a.dir else Path(tempfile.mkdtemp(prefix="bench_archive_"))
+    root.mkdir(parents=True, exist_ok=True)
+    render(root, a.duration_s)
+    print(f"session {a.duration_s:g} s, 2 sensors at 10 frames/s, chunks of {a.chunk_s:g} s; "
+          f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f}", flush=True)
+    runs = {"serial": [], "dask1": [], "dask2": [], "pool2": []}
+    plan = {"serial": ("measure", 1), "dask1": ("measure-archive", 1), "dask2": ("measure-archive", 2),
+            "pool2": ("measure", 2)}
+    for r in range(a.repeat):
+        pair = ["dask1", "dask2"] if r % 2 == 0 else ["dask2", "dask1"]
+        order = ["serial", *pair] + ([] if a.no_measure_pool else ["pool2"])
+        for name in order:
+            res = run(root, name, *plan[name], a.chunk_s)
+            runs[name].append(res)
+            print(f"  repeat {r + 1} {name:6s} wall {res['wall_s']:6.1f} s  processing {res['process_s']:6.1f} s  "
+                  f"CPU {res['cpu_s']:6.1f} s  load {os.getloadavg()[0]:5.2f}  md5 {res['md5']}", flush=True)
+    med = {k: (statistics.median(x["wall_s"] for x in v), statistics.median(x["process_s"] for x in v),
+               statistics.median(x["cpu_s"] for x in v)) for k, v in runs.items() if v}
+    ref = runs["serial"][0]["md5"]
+    identical = all(x["md5"] == ref for v in runs.values() for x in v)
+    print(f"\nmedians over {a.repeat} repeats (wall of the whole command / processing once the cluster is up / "
+          f"CPU of the command and its worker processes):")
+    labels = {"serial": "measure --workers 1 (anchor)", "dask1": "measure-archive, 1 worker",
+              "dask2": "measure-archive, 2 workers", "pool2": "measure --workers 2 (forked pool)"}
+    for k, (w, p, c) in med.items():
+        print(f"  {labels[k]:34s} {w:7.1f} s   {p:7.1f} s   {c:7.1f} s")
+    print(f"speed-up 2 vs 1 archive workers: {med['dask1'][0] / med['dask2'][0]:.2f}x whole command, "
+          f"{med['dask1'][1] / med['dask2'][1]:.2f}x processing (target >= 1.8x)")
+    print(f"serial measure / archive 2 workers: {med['serial'][0] / med['dask2'][0]:.2f}x whole command; "
+          f"archive 1 worker / serial measure: {med['dask1'][0] / med['serial'][0]:.2f}x")
+    if "pool2" in med and runs["pool2"]:
+        print(f"measure --workers 2 / archive 2 workers: {med['pool2'][0] / med['dask2'][0]:.2f}x")
+    print(f"rows identical to serial measure (md5 of every CSV): {'yes' if identical else 'NO'}")
+    print(f"load average at the end {os.getloadavg()[0]:.2f}")
+    return 0 if identical else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,403 @@
+"""``shipstar measure-archive``: ``shipstar measure`` over an archive of sessions, on Dask."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from shipstar.cli._common import (
+    accuracy_warnings,
+    add_date_obs_is_argument,
+    add_refraction_arguments,
+    add_site_arguments,
+    add_weather_arguments,
+    check_output_dir,
+    check_output_file,
+    emit_json,
+    float_in_range,
+    int_in_range,
+)
+from shipstar.errors import ShipstarError
+
+__all__ = ["register", "run"]
+
+EPILOG = """\
+examples:
+  shipstar measure-archive --session nights/2026-03-01 --session nights/2026-03-02 \\
+      --install A1.install.toml A2.install.toml --out-dir attitude/ --workers 2
+  shipstar measure-archive --sensor A1=sea/A1 --sensor A2=sea/A2 --install A1.toml A2.toml \\
+      --track sea/track.csv --weather sea/weather.csv --out att.csv --scheduler tcp://10.0.0.5:8786
+
+The rows are those of 'shipstar measure' with the same inputs, byte for byte: each
+session is cut into --chunk-s chunks (default 60 s), each chunk of each sensor is one
+Dask task (a fresh start with a lost-in-space solve, 2.6 s of the frames before the chunk
+processed again to rebuild the tracking and motion state), and the results come back to
+this process, where they are merged in time order, paired and fused, and written.
+
+Sessions: --sensor NAME=DIR (repeat per sensor) with --out CSV for one session, as in
+'shipstar measure'; or --session DIR (repeat) with --out-dir DIR for many, each DIR
+holding one sub-directory of FITS frames per sensor (named as the sensors of the
+installation files, or --sensors A1,A2) and, unless the position or weather is given
+here, its track.csv and weather.csv (the layout 'shipstar simulate-session' writes).
+Each session's CSV is OUT-DIR/NAME.csv (NAME: the directory's name); --sessions-at-once
+sessions run together (default 2) so that the cluster stays busy between sessions.
+The merging, pairing and fusion run here, about a tenth of the work: one command keeps
+about 9 single-threaded workers busy (image frames); for a larger cluster run several
+commands, each with its share of the sessions, on the same --scheduler (docs/archive.md).
+
+Where the tasks run: a LocalCluster of --workers processes (default: the cores) with one
+thread each, or --scheduler tcp://HOST:PORT (any running Dask scheduler: dask-jobqueue on
+SLURM/PBS, dask-kubernetes, 'dask scheduler' + 'dask worker'; docs/archive.md).  The
+workers need shipstar installed, the frames at the same paths, and their own catalog
+cache.  A task that raises is retried (--retries, default 2); a worker lost in the middle
+of a task has it rescheduled.  Every chunk that ran more than once is reported on stderr.
+A chunk that fails on every attempt is named on one line, its session's output is left as
+OUT.partial (every row before that chunk) with its checkpoint, and the exit code is 1;
+the same command with --resume continues it.  Ctrl-C or SIGTERM stops after the current
+epoch, leaving OUT.partial (exit 130 / 143).
+
+Exit codes: 0 every session complete, every frame solved, every epoch fused and
+consistent; 1 a chunk failed, or (as 'shipstar measure') some frames failed or epochs are
+inconsistent, or folders look swapped; 2 bad input, including a scheduler that cannot
+be reached; 130 / 143 stopped by SIGINT / SIGTERM.
+"""
+
+
+def _name_value(text: str):
+    from shipstar.cli._cmd_measure import _name_value as parse
+
+    return parse(text)
+
+
+def register(subparsers) -> argparse.ArgumentParser:
+    from shipstar.cli._cmd_measure import SITE_HELPS, WEATHER_HELPS
+    from shipstar.cli._header_checks import add_trust_flags_argument
+    from shipstar.cli._model_inputs import add_model_input_arguments
+
+    p = subparsers.add_parser(
+        "measure-archive", help="'shipstar measure' over many sessions or a long one, on a Dask cluster",
+        description="Ship attitude over an archive of sessions, or one long session cut into time chunks, "
+                    "processed as dask.distributed tasks (a LocalCluster here, or any Dask scheduler); the rows "
+                    "are those of 'shipstar measure'.",
+        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    s = p.add_argument_group("sessions (one with --sensor, or many with --session)")
+    s.add_argument("--sensor", action="append", type=_name_value, default=[], metavar="NAME=DIR",
+                   help="one session: a sensor and its frames directory (repeat for each sensor)")
+    s.add_argument("--session", action="append", default=[], metavar="DIR",
+                   help="a session directory with one frames sub-directory per sensor (repeat)")
+    s.add_argument("--sensors", metavar="A1,A2",
+                   help="with --session: the sensors' sub-directories (default: the installation files' sensors)")
+    p.add_argument("--install", required=True, action="extend", nargs="+", metavar="FILE",
+                   help="installation TOML files, one per sensor")
+    p.add_argument("--camera", action="append", type=_name_value, default=[], metavar="NAME=FILE",
+                   help="camera preset or TOML file of a sensor (default: the installation's camera preset)")
+    g = p.add_argument_group("ship position (fixed, or a track; with --session default DIR/track.csv)")
+    add_site_arguments(g, SITE_HELPS, deflection_default=None)
+    g.add_argument("--track", metavar="CSV", help="time_utc, lat_deg, lon_deg[, height_m][, xi_arcsec, eta_arcsec]")
+    w = p.add_argument_group("weather (fixed, or a table; with --session default DIR/weather.csv)")
+    add_weather_arguments(w, WEATHER_HELPS)
+    w.add_argument("--weather", metavar="CSV", help="time_utc, pressure_hpa, temperature_c[, relative_humidity]")
+    add_model_input_arguments(p, dock=False)
+    o = p.add_argument_group("processing")
+    add_refraction_arguments(o, "refraction model (default erfa; almanac = the seeds')",
+                             "per-star (default) or the seed's boresight-only refraction")
+    add_date_obs_is_argument(o)
+    add_trust_flags_argument(o)
+    o.add_argument("--reference", metavar="NAME", help="sensor whose frame times are the epochs (default first)")
+    o.add_argument("--max-pair-offset-s", type=float_in_range(0.0), default=0.06,
+                   help="largest time offset of paired frames (s, default 0.06)")
+    o.add_argument("--no-motion-compensation", action="store_true",
+                   help="do not carry paired frames to the epoch time (for comparison)")
+    o.add_argument("--no-streak-correction", action="store_true",
+                   help="do not turn streak centroids (exposure averages) to mid-exposure directions (for comparison)")
+    o.add_argument("--chunk-s", type=float_in_range(1e-3, 86400.0), default=60.0, metavar="S",
+                   help="processing chunk (s, default 60): each sensor's chunk is one Dask task")
+    d = p.add_argument_group("Dask")
+    d.add_argument("--scheduler", metavar="ADDRESS",
+                   help="a running Dask scheduler (tcp://HOST:PORT); default: a LocalCluster on this machine")
+    d.add_argument("--workers", type=int_in_range(1, 256), default=None, metavar="N",
+                   help="LocalCluster worker processes, one thread each (default: the cores)")
+    d.add_argument("--retries", type=int_in_range(0, 100), default=2, metavar="N",
+                   help="retries of a task that raised (default 2)")
+    d.add_argument("--retry-delay-s", type=float_in_range(0.0, 3600.0), default=1.0, metavar="S",
+                   help="a failed attempt waits this long before its retry (s, default 1)")
+    d.add_argument("--connect-timeout-s", type=float_in_range(0.1, 3600.0), default=10.0, metavar="S",
+                   help="give up reaching --scheduler after this long (s, default 10)")
+    d.add_argument("--sessions-at-once", type=int_in_range(1, 64), default=2, metavar="N",
+                   help="sessions processed together (default 2)")
+    r = p.add_argument_group("output")
+    r.add_argument("--out", metavar="CSV", help="with --sensor: the attitude CSV to write")
+    r.add_argument("--out-dir", metavar="DIR", help="with --session: write DIR/NAME.csv per session")
+    r.add_argument("--truth", metavar="CSV",
+                   help="with --sensor: true attitude (simulated sessions), errors in the summary")
+    r.add_argument("--progress", action="store_true", help="progress bar on stderr (default: only on a terminal)")
+    r.add_argument("--json", action="store_true", help="print one JSON object (the summaries)")
+    r.add_argument("--resume", action="store_true",
+                   help="continue stopped or failed sessions (OUT.partial and OUT.resume); with --session, "
+                        "sessions already complete are skipped")
+    p.set_defaults(run=run)
+    return p
+
+
+# -- the sessions ----------------------------------------------------------------------------
+
+class _Session:
+    """One session's command line (``args`` as ``shipstar measure`` would have it) and,
+    once prepared, its job, sources and CSV comments."""
+
+    def __init__(self, name: str, args):
+        self.name, self.args = name, args
+        self.job = self.sources = self.eop = self.truth = None
+        self.comments, self.start_warnings, self.overrides = [], [], {}
+        self.outcome = None            # ArchiveOutcome
+        self.error = ""                # a one-line error (bad input found while running)
+        self.swapped = ""
+        self.skipped = ""
+        self.resume = False
+
+
+def _sessions(args) -> list:
+    from pathlib import Path
+
+    if bool(args.sensor) == bool(args.session):
+        raise ShipstarError("give the frames either as --sensor NAME=DIR (one session) or as --session DIR "
+                            "(one or more), not both")
+    if args.sensor:
+        if not args.out or args.out_dir:
+            raise ShipstarError("with --sensor give --out CSV (--out-dir goes with --session)")
+        if args.sensors:
+            raise ShipstarError("--sensors goes with --session (with --sensor the sensors are named there)")
+        return [_Session(Path(args.out).stem, argparse.Namespace(**vars(args)))]
+    if not args.out_dir or args.out:
+        raise ShipstarError("with --session give --out-dir DIR (--out goes with --sensor)")
+    if args.truth:
+        raise ShipstarError("--truth goes with --sensor (one session)")
+    check_output_dir(args.out_dir, "--out-dir")
+    if args.sensors:
+        names = [n.strip() for n in args.sensors.split(",") if n.strip()]
+    else:
+        from shipstar.calibrate.installation import load_installation
+
+        names = [load_installation(path).sensor for path in args.install]
+    out, seen = [], {}
+    for directory in args.session:
+        d = Path(directory)
+        if not d.is_dir():
+            raise ShipstarError(f"--session {d} does not exist or is not a directory")
+        name = d.name or d.resolve().name
+        if name in seen:
+            raise ShipstarError(f"two sessions named {name!r} ({seen[name]} and {d}): their outputs would collide")
+        seen[name] = d
+        a = argparse.Namespace(**vars(args))
+        a.sensor = [(n, str(d / n)) for n in names]
+        a.out = str(Path(args.out_dir) / f"{name}.csv")
+        if args.lat_deg is None and args.lon_deg is None and not args.track:
+            if not (d / "track.csv").is_file():
+                raise ShipstarError(f"session {d} has no track.csv: give --track or --lat-deg/--lon-deg")
+            a.track = str(d / "track.csv")
+        if args.pressure_hpa is None and args.temperature_c is None and not args.weather:
+            if not (d / "weather.csv").is_file():
+                raise ShipstarError(f"session {d} has no weather.csv: give --weather or --pressure-hpa/--temperature-c")
+            a.weather = str(d / "weather.csv")
+        out.append(_Session(name, a))
+    return out
+
+
+def _plan_output(session) -> None:
+    """Where a session's rows go: refuse to start over a stopped run (without --resume);
+    with --resume continue it, skip a complete session (--session) or start afresh."""
+    from pathlib import Path
+
+    from shipstar.cli._cmd_measure import _check_partial
+
+    a = session.args
+    check_output_file(a.out, "--out")
+    out = Path(a.out)
+    partial = out.with_name(out.name + ".partial")
+    if not a.resume:
+        _check_partial(a)
+    elif a.session and not partial.exists():        # many sessions: resume those stopped, skip those done
+        if out.exists():
+            session.skipped = f"{out} is complete"
+    else:
+        session.resume = True
+
+
+def _prepare(session) -> None:
+    """As ``shipstar measure`` does before processing: the job, the frames' index, the
+    coverage and swap checks, and the CSV's comment lines."""
+    from shipstar.cli._cmd_measure import _check_covered, _csv_comments, _eop, _job, _override_comments, \
+        _site_and_weather, _sources
+    from pathlib import Path
+
+    from shipstar.cli._header_checks import override_record
+    from shipstar.pipeline import TruthTable
+    from shipstar.pipeline._integrity import swap_check
+
+    a = session.args
+    n_caught = len(getattr(a, "caught_warnings", None) or [])
+    track, weather = _site_and_weather(a)
+    session.truth = TruthTable.read_csv(a.truth) if a.truth else None
+    session.job = _job(a, track, weather)
+    session.sources = _sources(a, session.job.configs, track, weather)
+    for src in session.sources:                     # the workers may run in another directory
+        src.directory = str(Path(src.directory).resolve())
+    _check_covered(session.sources, track, weather)
+    session.swapped = swap_check(session.job.configs, session.sources, track, weather, session.job.options) or ""
+    if session.swapped:
+        return
+    session.eop = _eop(session.sources)
+    here = argparse.Namespace(caught_warnings=(getattr(a, "caught_warnings", None) or [])[n_caught:])
+    session.start_warnings = accuracy_warnings(here)
+    session.overrides = override_record(a.header_checks)
+    session.comments = _csv_comments(session.eop, session.start_warnings) + _override_comments(session.overrides)
+
+
+def _process_all(sessions, client, args, stop, bar) -> None:
+    """Every prepared session through :func:`~shipstar.pipeline._archive.run_archive`,
+    ``--sessions-at-once`` at a time (threads here; the work is on the cluster)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from shipstar.pipeline._archive import run_archive
+
+    todo = [s for s in sessions if s.job is not None and not s.swapped and not s.skipped]
+    totals = {id(s): sum(len(src) for src in s.sources) for s in todo}
+    done = {id(s): 0 for s in todo}
+
+    def progress(s):
+        def cb(n, total):
+            done[id(s)] = n
+            bar("frames", sum(done.values()), sum(totals.values()))
+        return cb
+
+    def one(s):
+        if stop.is_set():
+            return
+        try:
+            s.outcome = run_archive(client, s.job, s.sources, s.args.out, retries=args.retries,
+                                    retry_delay_s=args.retry_delay_s, truth=s.truth,
+                                    comments=s.comments, resume=s.resume, chunk_s=args.chunk_s,
+                                    progress=progress(s), stop=stop)
+        except ShipstarError as exc:
+            s.error = str(exc)
+
+    if len(todo) == 1:
+        one(todo[0])
+        return
+    with ThreadPoolExecutor(max_workers=min(args.sessions_at_once, max(1, len(todo)))) as ex:
+        for f in [ex.submit(one, s) for s in todo]:
+            f.result()
+
+
+def _summary(session, args) -> dict:
+    from shipstar.cli._cmd_measure import _roles
+    from shipstar.cli._model_inputs import add_measure_uncertainty
+
+    a, job = session.args, session.job
+    if session.skipped:
+        return {"out": a.out, "complete": True, "skipped": session.skipped}
+    if session.swapped or session.error:
+        return {"out": a.out, "complete": False, "error": session.swapped or session.error}
+    o = session.outcome
+    m = o.measure
+    base = {"chunks": o.n_tasks, "chunks_run_again": list(o.attempts)}
+    if m is None:
+        partial = a.out + ".partial"
+        return {"out": partial, "complete": False, "failed_chunk": o.failed, **base}
+    names = [c.name for c in job.configs]
+    fore, athw = _roles(job.configs)
+    summary = m.stats.summary(reference_sensor=names[job.reference], fore_aft_sensor=fore, athwartship_sensor=athw,
+                              options=job.options)
+    summary["out"] = str(m.path)
+    summary["complete"] = m.complete
+    summary["eop"] = session.eop
+    add_measure_uncertainty(summary, a, job)
+    summary["date_obs_is"] = a.date_obs_is
+    summary["time_sources"] = {s.name: s.time_sources() for s in session.sources}
+    summary["warnings"] = list(dict.fromkeys(session.start_warnings + list(m.warnings)))
+    summary.update(session.overrides)
+    summary.update(base)
+    if m.resumed_at_s is not None:
+        summary["resumed_at_s"] = m.resumed_at_s
+    if m.stopped:
+        summary["stopped"] = m.stopped
+    return summary
+
+
+def run(args) -> int:
+    from shipstar._signals import EXIT_CODES, StopOnSignals
+    from shipstar.cli._cmd_measure import _print_text
+    from shipstar.cli._header_checks import print_overrides
+    from shipstar.cli._model_inputs import print_measure_uncertainty
+    import dask
+
+    from shipstar.pipeline._archive import QUIET_DASK, connect
+    from shipstar.pipeline._measure import default_workers
+    from shipstar.pipeline._progress import ProgressBar
+
+    import time
+
+    where = "shipstar measure-archive"
+    sessions = _sessions(args)
+    for s in sessions:
+        _plan_output(s)
+    for s in sessions:
+        if not s.skipped:
+            _prepare(s)
+            print_overrides("measure-archive", s.overrides)
+    n_workers = args.workers or default_workers()
+    bar = ProgressBar(True if args.progress else None)
+    dask.config.set(QUIET_DASK)                     # this process's part (the LocalCluster's: connect)
+    client = cluster = None
+    timing = {"connect_s": 0.0, "process_s": 0.0}
+    try:
+        with StopOnSignals() as stop:
+            if any(s.job is not None and not s.swapped for s in sessions):
+                t0 = time.perf_counter()
+                client, cluster = connect(args.scheduler, workers=n_workers, timeout_s=args.connect_timeout_s)
+                t1 = time.perf_counter()
+                _process_all(sessions, client, args, stop, bar)
+                timing = {"connect_s": t1 - t0, "process_s": time.perf_counter() - t1}
+    finally:
+        bar.close()
+        if client is not None:
+            client.close()
+        if cluster is not None:
+            cluster.close()
+    summaries = {s.name: _summary(s, args) for s in sessions}
+    if args.json:
+        emit_json({"sessions": summaries, "scheduler": args.scheduler or f"LocalCluster({n_workers} workers)",
+                   "chunk_s": args.chunk_s, "retries": args.retries, "wall": timing})
+    else:
+        for s in sessions:
+            summary = summaries[s.name]
+            if len(sessions) > 1:
+                print(f"session {s.name}:")
+            if "methods" in summary:
+                _print_text(summary, summary["out"])
+                print_measure_uncertainty(summary)
+            elif summary.get("skipped"):
+                print(f"skipped: {summary['skipped']}")
+    code = 0
+    for s in sessions:
+        summary = summaries[s.name]
+        tag = f"session {s.name}: " if len(sessions) > 1 else ""
+        for line in summary.get("chunks_run_again", []):
+            print(f"{where}: {tag}run again: {line}", file=sys.stderr)
+        if summary.get("error"):
+            print(f"{where}: error: {tag}{summary['error']}", file=sys.stderr)
+            code = max(code, 1 if s.swapped else 2)
+        elif summary.get("failed_chunk"):
+            print(f"{where}: {tag}failed: {summary['failed_chunk']}; {summary['out']} holds every row before it "
+                  f"(the same command with --resume continues it)", file=sys.stderr)
+            code = max(code, 1)
+        elif summary.get("stopped"):
+            print(f"{where}: {tag}stopped by {summary['stopped']}; {summary['out']} holds every finished row; "
+                  f"the same command with --resume continues it", file=sys.stderr)
+            code = max(code, EXIT_CODES.get(summary["stopped"], 1))
+        elif "methods" in summary:
+            problems = s.outcome.measure.stats.problems_line()
+            if problems:
+                print(f"{where}: {tag}{problems}", file=sys.stderr)
+                code = max(code, 1)
+    return code

@@ -1,0 +1,1016 @@
+/* Compiled kernels of shipstar's star extraction (plain C99, Python's buffer protocol).
+ *
+ * Called only through shipstar/extract/_kernels.py, which checks dtypes, C order and sizes
+ * (the kernels trust them).  Each kernel repeats, star by star, the arithmetic of the
+ * vectorised NumPy code it replaced (docstrings of _kernels.py name it); the results agree
+ * to rounding (sums taken in another order).  The GIL is released around the loops.
+ *
+ *   streak_equations  normal equations of the smeared-PSF model (tabulated pixel fractions)
+ *   streak_fit        Levenberg-Marquardt fit of that model, star by star
+ *   gauss_fit         Gauss-Newton fit of the pixel-integrated Gaussian (point stars), star by star
+ *   gauss_normal      its normal equations
+ *   block_stats       median, MAD and clipped RMS of the background mesh's block samples
+ *   median3           3 x 3 median filter of the block grid
+ *   mesh_at           bilinear background and noise at pixel positions
+ *   candidates        pixels above their block's level (one pass), as sorted flat indices
+ *   local_max         candidates that are the maximum of their 3 x 3 neighbourhood
+ *   neighbours        the 8 neighbours' values of pixels
+ *   tap_sum           the line filter's sum of shifted images, tile by tile
+ *   box3              3 x 3 mean of a float32 window (trails, _artifacts)
+ *   label_runs        8- (or 4-) connected components of sorted candidate pixels (union-find on runs)
+ *   suppress          greedy suppression of peaks within a stronger peak's streak footprint
+ *   erf_array         erf of an array (libm)
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* parameter columns of p (N, 7) */
+enum { PX = 0, PY = 1, PFLUX = 2, PBG = 3, PSIGMA = 4, PDX = 5, PDY = 6, NPAR = 7 };
+#define KMAX 6
+
+typedef struct {
+    /* window data of one star */
+    const double *values;   /* (P,) */
+    const uint8_t *valid;   /* (P,) */
+    double x0, y0, noise;
+} Win;
+
+typedef struct {
+    int wy, wx, n, half, steps, fit_smear;
+    const double *t, *w;                          /* (n,) nodes and weights */
+    const double *frac, *dfrac, *dc, *ddc;        /* (steps + 1, 2 half + 1) */
+    double inv_gain;
+} Model;
+
+typedef struct {
+    /* per-call work memory */
+    double *ex0, *ex1;      /* (n, m) x fractions and derivatives at each point's local pixels */
+    double *ey0, *ey1;      /* (n, m) y ..., times the point's weight */
+    int *cx0, *cy0;         /* (n,) first window column / row of each point's local pixels */
+    double *jac;            /* (k, P) */
+} Work;
+
+static int work_alloc(Work *wk, const Model *md) {
+    int m = 2 * md->half + 1, P = md->wy * md->wx;
+    size_t nm = (size_t)md->n * (size_t)m;
+    wk->ex0 = malloc(sizeof(double) * (4 * nm + (size_t)KMAX * P));
+    wk->cx0 = malloc(sizeof(int) * 2 * (size_t)(md->n > 0 ? md->n : 1));
+    if (!wk->ex0 || !wk->cx0) { free(wk->ex0); free(wk->cx0); return -1; }
+    wk->ex1 = wk->ex0 + nm;
+    wk->ey0 = wk->ex1 + nm;
+    wk->ey1 = wk->ey0 + nm;
+    wk->jac = wk->ey1 + nm;
+    wk->cy0 = wk->cx0 + md->n;
+    return 0;
+}
+
+static void work_free(Work *wk) { free(wk->ex0); free(wk->cx0); }
+
+/* Pixel fractions of a point at c (table interpolation, as _streak._tabulated_profiles):
+ * local pixel j is pixel rint(c) - half + j; writes m values of E and dE/dc (times scale). */
+static void point_profile(const Model *md, double c, double scale, double *e, double *de, int *first_px) {
+    int m = 2 * md->half + 1;
+    double near = rint(c);
+    double pos = (c - near + 0.5) * md->steps;
+    long i = (long)pos;
+    if (i > md->steps - 1) i = md->steps - 1;
+    double wgt = pos - (double)i;
+    const double *f = md->frac + i * m, *df = md->dfrac + i * m, *d = md->dc + i * m, *dd = md->ddc + i * m;
+    for (int j = 0; j < m; j++) {
+        e[j] = (f[j] + wgt * df[j]) * scale;
+        de[j] = (d[j] + wgt * dd[j]) * scale;
+    }
+    *first_px = (int)near - md->half;
+}
+
+/* Model (P,), its Jacobian (k, P) [x, y, F, b, (dx, dy)] of one star at parameters q (7,). */
+static void star_model(const Model *md, const Win *win, const double *q, Work *wk, double *model) {
+    int m = 2 * md->half + 1, wy = md->wy, wx = md->wx, P = wy * wx, n = md->n;
+    int k = md->fit_smear ? 6 : 4;
+    double *jac = wk->jac;
+    double *shape = jac + 2 * P, *jx = jac, *jy = jac + P;
+    memset(jac, 0, sizeof(double) * (size_t)k * P);
+    int x0 = (int)win->x0, y0 = (int)win->y0;
+    for (int i = 0; i < n; i++) {
+        double cx = q[PX] + md->t[i] * q[PDX], cy = q[PY] + md->t[i] * q[PDY];
+        int fx, fy;
+        point_profile(md, cx, 1.0, wk->ex0 + i * m, wk->ex1 + i * m, &fx);
+        point_profile(md, cy, md->w[i], wk->ey0 + i * m, wk->ey1 + i * m, &fy);
+        wk->cx0[i] = fx - x0;
+        wk->cy0[i] = fy - y0;
+    }
+    double *jdx = md->fit_smear ? jac + 4 * P : NULL, *jdy = md->fit_smear ? jac + 5 * P : NULL;
+    for (int i = 0; i < n; i++) {
+        const double *ex = wk->ex0 + i * m, *dex = wk->ex1 + i * m, *ey = wk->ey0 + i * m, *dey = wk->ey1 + i * m;
+        int c0 = wk->cx0[i], r0 = wk->cy0[i];
+        int ja = c0 < 0 ? -c0 : 0, jb = (wx - c0 < m) ? wx - c0 : m;
+        int ra = r0 < 0 ? -r0 : 0, rb = (wy - r0 < m) ? wy - r0 : m;
+        double ti = md->t[i];
+        for (int a = ra; a < rb; a++) {
+            int base = (r0 + a) * wx + c0;
+            double eya = ey[a], deya = dey[a];
+            for (int b = ja; b < jb; b++) {
+                shape[base + b] += eya * ex[b];
+                jx[base + b] += eya * dex[b];
+                jy[base + b] += deya * ex[b];
+            }
+            if (jdx) {
+                double teya = eya * ti, tdeya = deya * ti;
+                for (int b = ja; b < jb; b++) {
+                    jdx[base + b] += teya * dex[b];
+                    jdy[base + b] += tdeya * ex[b];
+                }
+            }
+        }
+    }
+    double flux = q[PFLUX], bg = q[PBG];
+    for (int p = 0; p < P; p++) {
+        jx[p] *= flux;
+        jy[p] *= flux;
+        jac[3 * P + p] = 1.0;
+        model[p] = bg + flux * shape[p];
+    }
+    if (jdx) {
+        for (int p = 0; p < P; p++) {
+            jdx[p] *= flux;
+            jdy[p] *= flux;
+        }
+    }
+}
+
+/* Weighted normal equations at q: a (k, k), g (k,), model and var (P,); returns chi2 of
+ * the residuals under the weights var_chi (NULL: var itself) and r2sum under var. */
+static void star_equations(const Model *md, const Win *win, const double *q, Work *wk,
+                           double *a, double *g, double *model, double *var) {
+    int P = md->wy * md->wx, k = md->fit_smear ? 6 : 4;
+    star_model(md, win, q, wk, model);
+    double n2 = win->noise * win->noise, bg = q[PBG];
+    for (int j = 0; j < k * k; j++) a[j] = 0.0;
+    for (int j = 0; j < k; j++) g[j] = 0.0;
+    const double *jac = wk->jac;
+    for (int p = 0; p < P; p++) {
+        double ex = model[p] - bg;
+        double v = n2 + (ex > 0.0 ? ex : 0.0) * md->inv_gain;
+        var[p] = v;
+        if (!win->valid[p]) continue;
+        double wt = 1.0 / v, r = win->values[p] - model[p];
+        int star = 0;                   /* off every point's pixels only b's derivative (1) is not 0: */
+        for (int j = 0; j < k; j++)     /* the other terms would add exact zeros */
+            if (j != 3 && jac[j * P + p] != 0.0) { star = 1; break; }
+        if (!star) {
+            g[3] += wt * r;
+            a[3 * k + 3] += wt;
+            continue;
+        }
+        for (int j = 0; j < k; j++) {
+            double jw = jac[j * P + p] * wt;
+            g[j] += jw * r;
+            for (int l = 0; l <= j; l++) a[j * k + l] += jw * jac[l * P + p];
+        }
+    }
+    for (int j = 0; j < k; j++)
+        for (int l = j + 1; l < k; l++) a[j * k + l] = a[l * k + j];
+}
+
+static double residual_chi2(const Win *win, const double *model, const double *var, int P) {
+    double s = 0.0;
+    for (int p = 0; p < P; p++) {
+        if (!win->valid[p]) continue;
+        double r = win->values[p] - model[p];
+        s += r * r / var[p];
+    }
+    return s;
+}
+
+/* Cholesky with floored pivots (as _fit._cholesky) and the solve of (L L^T) x = b, m right sides. */
+static void cho_solve(const double *a, int k, double *b, int m) {
+    double low[KMAX * KMAX];
+    memset(low, 0, sizeof(low));
+    for (int j = 0; j < k; j++) {
+        double d = a[j * k + j];
+        for (int l = 0; l < j; l++) d -= low[j * k + l] * low[j * k + l];
+        double floor_ = 1e-12 * fabs(a[j * k + j]) + 1e-300;
+        double ljj = sqrt(d > floor_ ? d : floor_);
+        if (isnan(d)) ljj = d;
+        low[j * k + j] = ljj;
+        for (int i = j + 1; i < k; i++) {
+            double s = a[i * k + j];
+            for (int l = 0; l < j; l++) s -= low[i * k + l] * low[j * k + l];
+            low[i * k + j] = s / ljj;
+        }
+    }
+    for (int c = 0; c < m; c++) {
+        double *y = b + c;                                       /* column c, stride m */
+        for (int i = 0; i < k; i++) {
+            double s = y[i * m];
+            for (int l = 0; l < i; l++) s -= low[i * k + l] * y[l * m];
+            y[i * m] = s / low[i * k + i];
+        }
+        for (int i = k - 1; i >= 0; i--) {
+            double s = y[i * m];
+            for (int l = i + 1; l < k; l++) s -= low[l * k + i] * y[l * m];
+            y[i * m] = s / low[i * k + i];
+        }
+    }
+}
+
+static double clipd(double v, double lo, double hi) { return v < lo ? lo : (v > hi ? hi : v); }
+
+/* ------------------------------------------------------------------ argument parsing */
+
+typedef struct {
+    Py_buffer b[16];
+    int n;
+} Bufs;
+
+static void bufs_release(Bufs *bs) {
+    for (int i = 0; i < bs->n; i++) PyBuffer_Release(&bs->b[i]);
+    bs->n = 0;
+}
+
+/* ------------------------------------------------------------------ streak_equations */
+
+static PyObject *py_streak_equations(PyObject *self, PyObject *args) {
+    Bufs bs = {.n = 0};
+    Py_buffer *p = &bs.b[0], *values = &bs.b[1], *valid = &bs.b[2], *x0 = &bs.b[3], *y0 = &bs.b[4],
+              *noise = &bs.b[5], *t = &bs.b[6], *w = &bs.b[7], *tab = &bs.b[8], *a_out = &bs.b[9],
+              *g_out = &bs.b[10], *model_out = &bs.b[11], *var_out = &bs.b[12], *jac_out = &bs.b[13];
+    Py_ssize_t N;
+    int wy, wx, n, half, steps, fit_smear;
+    double inv_gain;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*w*w*w*w*w*niiiiiid", p, values, valid, x0, y0, noise, t, w, tab,
+                          a_out, g_out, model_out, var_out, jac_out, &N, &wy, &wx, &n, &half, &steps, &fit_smear,
+                          &inv_gain))
+        return NULL;
+    bs.n = 14;
+    int m = 2 * half + 1, P = wy * wx, k = fit_smear ? 6 : 4;
+    size_t tab_len = (size_t)(steps + 1) * m;
+    const double *tb = tab->buf;
+    Model md = {wy, wx, n, half, steps, fit_smear, t->buf, w->buf, tb, tb + tab_len, tb + 2 * tab_len,
+                tb + 3 * tab_len, inv_gain};
+    int want_jac = jac_out->len > 0;
+    Work wk;
+    if (work_alloc(&wk, &md)) { bufs_release(&bs); return PyErr_NoMemory(); }
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t s = 0; s < N; s++) {
+        Win win = {(const double *)values->buf + s * P, (const uint8_t *)valid->buf + s * P,
+                   ((const double *)x0->buf)[s], ((const double *)y0->buf)[s], ((const double *)noise->buf)[s]};
+        const double *q = (const double *)p->buf + s * NPAR;
+        double *model = (double *)model_out->buf + s * P;
+        star_equations(&md, &win, q, &wk, (double *)a_out->buf + s * k * k, (double *)g_out->buf + s * k, model,
+                       (double *)var_out->buf + s * P);
+        if (want_jac) memcpy((double *)jac_out->buf + s * (size_t)k * P, wk.jac, sizeof(double) * (size_t)k * P);
+    }
+    Py_END_ALLOW_THREADS
+    work_free(&wk);
+    bufs_release(&bs);
+    Py_RETURN_NONE;
+}
+
+/* ------------------------------------------------------------------ streak_fit */
+
+/* One star's Levenberg-Marquardt fit (_streak.fit_streaks / _LMState); p (7,) in/out.
+ * Returns converged; a, model: the normal matrix and model of the last accepted parameters. */
+static int fit_one(const Model *md, const Win *win, const double *p0, double *p, Work *wk, double *a, double *model,
+                   double *scratch, int max_iterations, double tol_px, double fraction, double converged_chi2) {
+    int P = md->wy * md->wx, k = md->fit_smear ? 6 : 4;
+    static const int free_cols[6] = {PX, PY, PFLUX, PBG, PDX, PDY};
+    double *var = scratch, *t_model = scratch + P, *t_var = scratch + 2 * P;
+    double g[KMAX], t_a[KMAX * KMAX], t_g[KMAX], last[KMAX] = {0};
+    star_equations(md, win, p, wk, a, g, model, var);
+    double chi2 = residual_chi2(win, model, var, P);
+    double lam = 1e-3;
+    double cap = 0.25 * hypot(p[PDX], p[PDY]);
+    cap = cap > 0.5 ? cap : 0.5;
+    int watched[4] = {0, 1, k - 2, k - 1}, n_w = md->fit_smear ? 4 : 2;
+    for (int it = 0; it < max_iterations; it++) {
+        /* damped step and the predicted errors of the watched parameters */
+        double damped[KMAX * KMAX], rhs[KMAX * 5];
+        memcpy(damped, a, sizeof(double) * k * k);
+        for (int j = 0; j < k; j++) damped[j * k + j] = a[j * k + j] + lam * a[j * k + j];
+        int mr = 1 + n_w;
+        for (int j = 0; j < k * mr; j++) rhs[j] = 0.0;
+        for (int j = 0; j < k; j++) rhs[j * mr] = g[j];
+        for (int c = 0; c < n_w; c++) rhs[watched[c] * mr + 1 + c] = 1.0;
+        cho_solve(damped, k, rhs, mr);
+        double step[KMAX], sig[4];
+        for (int j = 0; j < k; j++) step[j] = rhs[j * mr];
+        double num = step[0] * last[0] + step[1] * last[1], den = last[0] * last[0] + last[1] * last[1];
+        double qq = -num / (den > 1e-300 ? den : 1e-300);
+        double div = 1.0 + clipd(qq, 0.0, 1.0);
+        for (int j = 0; j < k; j++) step[j] /= div;
+        step[0] = clipd(step[0], -cap, cap);
+        step[1] = clipd(step[1], -cap, cap);
+        if (md->fit_smear) {
+            step[k - 2] = clipd(step[k - 2], -2.0 * cap, 2.0 * cap);
+            step[k - 1] = clipd(step[k - 1], -2.0 * cap, 2.0 * cap);
+        }
+        for (int c = 0; c < n_w; c++) sig[c] = sqrt(fabs(rhs[watched[c] * mr + 1 + c]));
+        int done = 1;
+        for (int c = 0; c < n_w; c++) {
+            double lim = fraction * sig[c];
+            lim = tol_px > lim ? tol_px : lim;
+            if (!(fabs(step[watched[c]]) <= lim)) done = 0;
+        }
+        double dec = 0.0;
+        for (int j = 0; j < k; j++) dec += step[j] * g[j];
+        if (dec <= converged_chi2) done = 1;
+        double trial[NPAR];
+        memcpy(trial, p, sizeof(trial));
+        for (int j = 0; j < k; j++) trial[free_cols[j]] += step[j];
+        double fl = 1e-3 * fabs(p0[PFLUX]) + 1e-12;
+        trial[PFLUX] = trial[PFLUX] > fl ? trial[PFLUX] : fl;
+        trial[PSIGMA] = clipd(trial[PSIGMA], 0.25, 20.0);
+        if (done) {                       /* the last, negligible step: not evaluated again */
+            memcpy(p, trial, sizeof(trial));
+            return 1;
+        }
+        star_equations(md, win, trial, wk, t_a, t_g, t_model, t_var);
+        double chi_old = residual_chi2(win, t_model, var, P);
+        if (chi_old <= chi2 * (1.0 + 1e-9) + 1e-9) {
+            for (int j = 0; j < k; j++) last[j] = trial[free_cols[j]] - p[free_cols[j]];
+            memcpy(p, trial, sizeof(trial));
+            memcpy(a, t_a, sizeof(double) * k * k);
+            memcpy(g, t_g, sizeof(double) * k);
+            memcpy(model, t_model, sizeof(double) * P);
+            memcpy(var, t_var, sizeof(double) * P);
+            chi2 = residual_chi2(win, model, var, P);
+            lam = lam * 0.1 > 1e-6 ? lam * 0.1 : 1e-6;
+        } else {
+            lam *= 10.0;
+        }
+    }
+    return 0;
+}
+
+static PyObject *py_streak_fit(PyObject *self, PyObject *args) {
+    Bufs bs = {.n = 0};
+    Py_buffer *p0 = &bs.b[0], *values = &bs.b[1], *valid = &bs.b[2], *x0 = &bs.b[3], *y0 = &bs.b[4],
+              *noise = &bs.b[5], *t = &bs.b[6], *w = &bs.b[7], *tab = &bs.b[8], *p_out = &bs.b[9],
+              *a_out = &bs.b[10], *model_out = &bs.b[11], *conv_out = &bs.b[12];
+    Py_ssize_t N;
+    int wy, wx, n, half, steps, fit_smear, max_iterations;
+    double inv_gain, tol_px, fraction, converged_chi2;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*w*w*w*w*niiiiiiidddd", p0, values, valid, x0, y0, noise, t, w,
+                          tab, p_out, a_out, model_out, conv_out, &N, &wy, &wx, &n, &half, &steps, &fit_smear,
+                          &max_iterations, &inv_gain, &tol_px, &fraction, &converged_chi2))
+        return NULL;
+    bs.n = 13;
+    int m = 2 * half + 1, P = wy * wx, k = fit_smear ? 6 : 4;
+    size_t tab_len = (size_t)(steps + 1) * m;
+    const double *tb = tab->buf;
+    Model md = {wy, wx, n, half, steps, fit_smear, t->buf, w->buf, tb, tb + tab_len, tb + 2 * tab_len,
+                tb + 3 * tab_len, inv_gain};
+    Work wk;
+    double *scratch = malloc(sizeof(double) * 3 * (size_t)(P > 0 ? P : 1));
+    if (!scratch || work_alloc(&wk, &md)) { free(scratch); bufs_release(&bs); return PyErr_NoMemory(); }
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t s = 0; s < N; s++) {
+        Win win = {(const double *)values->buf + s * P, (const uint8_t *)valid->buf + s * P,
+                   ((const double *)x0->buf)[s], ((const double *)y0->buf)[s], ((const double *)noise->buf)[s]};
+        double *p = (double *)p_out->buf + s * NPAR;
+        memcpy(p, (const double *)p0->buf + s * NPAR, sizeof(double) * NPAR);
+        ((uint8_t *)conv_out->buf)[s] = (uint8_t)fit_one(
+            &md, &win, (const double *)p0->buf + s * NPAR, p, &wk, (double *)a_out->buf + s * k * k,
+            (double *)model_out->buf + s * P, scratch, max_iterations, tol_px, fraction, converged_chi2);
+    }
+    Py_END_ALLOW_THREADS
+    work_free(&wk);
+    free(scratch);
+    bufs_release(&bs);
+    Py_RETURN_NONE;
+}
+
+/* ------------------------------------------------------------------ point sources */
+
+/* Pixel fractions of a pixel-integrated Gaussian along one axis (_fit._profile): size values
+ * of E, dE/dcentre and dE/dsigma for pixels first .. first + size - 1. */
+static void gauss_profile(double centre, double first, int size, double s, double *e, double *de, double *ds,
+                          double *work) {
+    const double inv_sqrt2 = 0.70710678118654752440, sqrt2pi = 2.50662827463100050242;
+    double *cdf = work, *pdf = work + size + 1, *upd = work + 2 * (size + 1);
+    for (int j = 0; j <= size; j++) {
+        double u = first - 0.5 + (double)j - centre;
+        double z = u / s;
+        cdf[j] = 0.5 * erf(z * inv_sqrt2);
+        pdf[j] = exp(-0.5 * z * z) / (sqrt2pi * s);
+        upd[j] = z * pdf[j];
+    }
+    for (int j = 0; j < size; j++) {
+        e[j] = cdf[j + 1] - cdf[j];
+        de[j] = pdf[j] - pdf[j + 1];
+        ds[j] = upd[j] - upd[j + 1];
+    }
+}
+
+/* Normal equations (k = 4, or 5 with sigma) of one point star at q (5,): a (k, k), g (k,). */
+static void gauss_equations(const Win *win, int size, const double *q, int fit_sigma, double inv_gain, double *work,
+                            double *a, double *g) {
+    int k = fit_sigma ? 5 : 4;
+    double *ex = work, *dex = ex + size, *dsx = dex + size, *ey = dsx + size, *dey = ey + size, *dsy = dey + size;
+    double *tmp = dsy + size;
+    gauss_profile(q[0], win->x0, size, q[4], ex, dex, dsx, tmp);
+    gauss_profile(q[1], win->y0, size, q[4], ey, dey, dsy, tmp);
+    double flux = q[2], bg = q[3], n2 = win->noise * win->noise;
+    for (int j = 0; j < k * k; j++) a[j] = 0.0;
+    for (int j = 0; j < k; j++) g[j] = 0.0;
+    for (int r = 0; r < size; r++) {
+        for (int c = 0; c < size; c++) {
+            int p = r * size + c;
+            double jac[5];
+            double shape = ey[r] * ex[c];
+            jac[0] = flux * ey[r] * dex[c];
+            jac[1] = flux * dey[r] * ex[c];
+            jac[2] = shape;
+            jac[3] = 1.0;
+            if (fit_sigma) jac[4] = flux * (dsy[r] * ex[c] + ey[r] * dsx[c]);
+            double model = bg + flux * shape;
+            double ex_ = model - bg;
+            double v = n2 + (ex_ > 0.0 ? ex_ : 0.0) * inv_gain;
+            if (!win->valid[p]) continue;
+            double wt = 1.0 / v, res = win->values[p] - model;
+            for (int j = 0; j < k; j++) {
+                double jw = jac[j] * wt;
+                g[j] += jw * res;
+                for (int l = 0; l <= j; l++) a[j * k + l] += jw * jac[l];
+            }
+        }
+    }
+    for (int j = 0; j < k; j++)
+        for (int l = j + 1; l < k; l++) a[j * k + l] = a[l * k + j];
+}
+
+/* gauss_fit(p0, values, valid, x0, y0, noise, p_out, step_norm_out, N, size, fit_sigma, inv_gain, tol_px,
+ *           tol_chi2, max_iterations): Gauss-Newton fits of _fit.fit_gaussian, star by star. */
+static PyObject *py_gauss_fit(PyObject *self, PyObject *args) {
+    Bufs bs = {.n = 0};
+    Py_buffer *p0 = &bs.b[0], *values = &bs.b[1], *valid = &bs.b[2], *x0 = &bs.b[3], *y0 = &bs.b[4],
+              *noise = &bs.b[5], *p_out = &bs.b[6], *norm_out = &bs.b[7];
+    Py_ssize_t N;
+    int size, fit_sigma, max_iterations;
+    double inv_gain, tol_px, tol_chi2;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*w*w*niidddi", p0, values, valid, x0, y0, noise, p_out, norm_out, &N,
+                          &size, &fit_sigma, &inv_gain, &tol_px, &tol_chi2, &max_iterations))
+        return NULL;
+    bs.n = 8;
+    double *work = malloc(sizeof(double) * (9 * (size_t)size + 3));
+    if (!work) { bufs_release(&bs); return PyErr_NoMemory(); }
+    int P = size * size, k = fit_sigma ? 5 : 4;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t s = 0; s < N; s++) {
+        Win win = {(const double *)values->buf + s * P, (const uint8_t *)valid->buf + s * P,
+                   ((const double *)x0->buf)[s], ((const double *)y0->buf)[s], ((const double *)noise->buf)[s]};
+        const double *q0 = (const double *)p0->buf + s * 5;
+        double *q = (double *)p_out->buf + s * 5, norm = 0.0;
+        memcpy(q, q0, sizeof(double) * 5);
+        for (int it = 0; it < max_iterations; it++) {
+            double a[25], g[5], step[5];
+            gauss_equations(&win, size, q, fit_sigma, inv_gain, work, a, g);
+            memcpy(step, g, sizeof(step));
+            cho_solve(a, k, step, 1);
+            double dec = 0.0;
+            for (int j = 0; j < k; j++) dec += step[j] * g[j];
+            step[0] = clipd(step[0], -0.5, 0.5);
+            step[1] = clipd(step[1], -0.5, 0.5);
+            for (int j = 0; j < k; j++) q[j] += step[j];
+            double fl = 1e-6 * fabs(q0[2]) + 1e-12;
+            q[2] = q[2] > fl ? q[2] : fl;
+            q[4] = clipd(q[4], 0.25, 20.0);
+            norm = hypot(step[0], step[1]);
+            if (!(norm > tol_px && dec > tol_chi2)) break;
+        }
+        ((double *)norm_out->buf)[s] = norm;
+    }
+    Py_END_ALLOW_THREADS
+    free(work);
+    bufs_release(&bs);
+    Py_RETURN_NONE;
+}
+
+/* gauss_normal(p, values, valid, x0, y0, noise, a_out, N, size, fit_sigma, inv_gain): normal matrices. */
+static PyObject *py_gauss_normal(PyObject *self, PyObject *args) {
+    Bufs bs = {.n = 0};
+    Py_buffer *p = &bs.b[0], *values = &bs.b[1], *valid = &bs.b[2], *x0 = &bs.b[3], *y0 = &bs.b[4],
+              *noise = &bs.b[5], *a_out = &bs.b[6], *g_out = &bs.b[7];
+    Py_ssize_t N;
+    int size, fit_sigma;
+    double inv_gain;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*w*w*niid", p, values, valid, x0, y0, noise, a_out, g_out, &N, &size,
+                          &fit_sigma, &inv_gain))
+        return NULL;
+    bs.n = 8;
+    double *work = malloc(sizeof(double) * (9 * (size_t)size + 3));
+    if (!work) { bufs_release(&bs); return PyErr_NoMemory(); }
+    int P = size * size, k = fit_sigma ? 5 : 4;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t s = 0; s < N; s++) {
+        Win win = {(const double *)values->buf + s * P, (const uint8_t *)valid->buf + s * P,
+                   ((const double *)x0->buf)[s], ((const double *)y0->buf)[s], ((const double *)noise->buf)[s]};
+        gauss_equations(&win, size, (const double *)p->buf + s * 5, fit_sigma, inv_gain, work,
+                        (double *)a_out->buf + s * k * k, (double *)g_out->buf + s * k);
+    }
+    Py_END_ALLOW_THREADS
+    free(work);
+    bufs_release(&bs);
+    Py_RETURN_NONE;
+}
+
+/* ------------------------------------------------------------------ background mesh */
+
+static void sort_doubles(double *v, int n) {        /* insertion sort: 9 values */
+    for (int i = 1; i < n; i++) {
+        double x = v[i];
+        int j = i - 1;
+        while (j >= 0 && v[j] > x) { v[j + 1] = v[j]; j--; }
+        v[j + 1] = x;
+    }
+}
+
+/* The (n-1)/2-th and n/2-th smallest absolute deviations of sorted v (n,) from med, merging
+ * the deviations below med (walking down) with those above (walking up): their mean. */
+static double sorted_mad(const double *v, int n, double med) {
+    int lo = (n - 1) / 2, hi = n / 2, split = 0;
+    while (split < n && v[split] < med) split++;
+    int i = split - 1, j = split;
+    double a = 0.0, b = 0.0;
+    for (int c = 0; c <= hi; c++) {
+        double d;
+        if (i >= 0 && (j >= n || med - v[i] <= v[j] - med)) { d = med - v[i]; i--; }
+        else { d = v[j] - med; j++; }
+        if (c == lo) a = d;
+        if (c == hi) b = d;
+    }
+    return 0.5 * (a + b);
+}
+
+/* block_stats(sorted (B, k) f8, med_out, mad_out, rms_out, B, k, quantum): per block of sorted samples
+ * the median, the median absolute deviation from it and the RMS of the deviations within
+ * 3 max(1.4826 MAD, quantum) (_background.estimate_mesh before its clipped-RMS factor). */
+static PyObject *py_block_stats(PyObject *self, PyObject *args) {
+    Py_buffer sb, mb, db, rb;
+    Py_ssize_t B;
+    int k;
+    double quantum;
+    if (!PyArg_ParseTuple(args, "y*w*w*w*nid", &sb, &mb, &db, &rb, &B, &k, &quantum)) return NULL;
+    const double *samples = sb.buf;
+    double *med_out = mb.buf, *mad_out = db.buf, *rms_out = rb.buf;
+    Py_BEGIN_ALLOW_THREADS
+    int lo = (k - 1) / 2, hi = k / 2;
+    for (Py_ssize_t b = 0; b < B; b++) {
+        const double *v = samples + b * k;
+        double med = 0.5 * (v[lo] + v[hi]);
+        double mad = sorted_mad(v, k, med);
+        double clip = 1.4826 * mad;
+        clip = 3.0 * (clip > quantum ? clip : quantum);
+        double sum = 0.0;
+        int count = 0;
+        for (int i = 0; i < k; i++) {
+            double d = v[i] - med;
+            if (fabs(d) <= clip) { sum += d * d; count++; }
+        }
+        med_out[b] = med;
+        mad_out[b] = mad;
+        rms_out[b] = sqrt(sum / (count > 1 ? count : 1));
+    }
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&sb); PyBuffer_Release(&mb); PyBuffer_Release(&db); PyBuffer_Release(&rb);
+    Py_RETURN_NONE;
+}
+
+/* median3(grid (ny, nx) f8, out, ny, nx): 3 x 3 median, edges extended. */
+static PyObject *py_median3(PyObject *self, PyObject *args) {
+    Py_buffer gb, ob;
+    Py_ssize_t ny, nx;
+    if (!PyArg_ParseTuple(args, "y*w*nn", &gb, &ob, &ny, &nx)) return NULL;
+    const double *g = gb.buf;
+    double *out = ob.buf;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t r = 0; r < ny; r++) {
+        for (Py_ssize_t c = 0; c < nx; c++) {
+            double v[9];
+            int n = 0;
+            for (int dr = -1; dr <= 1; dr++) {
+                Py_ssize_t rr = r + dr < 0 ? 0 : (r + dr >= ny ? ny - 1 : r + dr);
+                for (int dc = -1; dc <= 1; dc++) {
+                    Py_ssize_t cc = c + dc < 0 ? 0 : (c + dc >= nx ? nx - 1 : c + dc);
+                    v[n++] = g[rr * nx + cc];
+                }
+            }
+            sort_doubles(v, 9);
+            out[r * nx + c] = v[4];
+        }
+    }
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&gb); PyBuffer_Release(&ob);
+    Py_RETURN_NONE;
+}
+
+/* mesh_at(bg, noise (ny, nx), x, y (n,), bg_out, noise_out, ny, nx, n, block): bilinear values
+ * between block centres (_background.Mesh.at, the same operations in the same order). */
+static void mesh_weights(double coord, double block, Py_ssize_t nb, Py_ssize_t *i0, Py_ssize_t *i1, double *f) {
+    double g = (coord - (block - 1.0) / 2.0) / block;
+    g = clipd(g, 0.0, (double)nb - 1.0);
+    Py_ssize_t top = nb - 2 > 0 ? nb - 2 : 0;
+    Py_ssize_t i = (Py_ssize_t)floor(g);
+    if (i > top) i = top;
+    *i0 = i;
+    *i1 = i + 1 < nb - 1 ? i + 1 : nb - 1;
+    *f = g - (double)i;
+}
+
+static PyObject *py_mesh_at(PyObject *self, PyObject *args) {
+    Py_buffer bb, nb_, xb, yb, ob, pb;
+    Py_ssize_t ny, nx, n;
+    double block;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*w*w*nnnd", &bb, &nb_, &xb, &yb, &ob, &pb, &ny, &nx, &n, &block))
+        return NULL;
+    const double *grids[2] = {bb.buf, nb_.buf}, *x = xb.buf, *y = yb.buf;
+    double *outs[2] = {ob.buf, pb.buf};
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t i = 0; i < n; i++) {
+        Py_ssize_t x0, x1, y0, y1;
+        double fx, fy;
+        mesh_weights(x[i], block, nx, &x0, &x1, &fx);
+        mesh_weights(y[i], block, ny, &y0, &y1, &fy);
+        for (int q = 0; q < 2; q++) {
+            const double *g = grids[q];
+            double top = g[y0 * nx + x0] * (1 - fx) + g[y0 * nx + x1] * fx;
+            double bottom = g[y1 * nx + x0] * (1 - fx) + g[y1 * nx + x1] * fx;
+            outs[q][i] = top * (1 - fy) + bottom * fy;
+        }
+    }
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&bb); PyBuffer_Release(&nb_); PyBuffer_Release(&xb); PyBuffer_Release(&yb);
+    PyBuffer_Release(&ob); PyBuffer_Release(&pb);
+    Py_RETURN_NONE;
+}
+
+/* ------------------------------------------------------------------ detection on candidate pixels */
+
+/* One function per pixel type T (image and block levels of the same type, as
+ * _detect._level_as gives them): candidates, local maxima, 3 x 3 neighbours. */
+#define DETECT_KERNELS(SUF, T)                                                                          \
+    static Py_ssize_t candidates_##SUF(const T *img, const T *level, int64_t *out, Py_ssize_t h,      \
+                                       Py_ssize_t w, Py_ssize_t block, Py_ssize_t nby, Py_ssize_t nbx) { \
+        Py_ssize_t n = 0;                                                                               \
+        for (Py_ssize_t r = 0; r < h; r++) {                                                            \
+            Py_ssize_t br = r / block < nby - 1 ? r / block : nby - 1;                                  \
+            const T *lv = level + br * nbx, *row = img + r * w;                                         \
+            for (Py_ssize_t c0 = 0; c0 < w; c0 += block) {                                              \
+                Py_ssize_t bc = c0 / block < nbx - 1 ? c0 / block : nbx - 1;                            \
+                Py_ssize_t c1 = (bc == nbx - 1 || c0 + block > w) ? w : c0 + block;                    \
+                T t = lv[bc];                                                                           \
+                Py_ssize_t c = c0;                                                                      \
+                for (; c + 16 <= c1; c += 16) {     /* a branch-free test of 16 pixels first */         \
+                    int any = 0;                                                                        \
+                    for (int j = 0; j < 16; j++) any |= row[c + j] > t;                                 \
+                    if (any)                                                                            \
+                        for (int j = 0; j < 16; j++)                                                    \
+                            if (row[c + j] > t) out[n++] = r * w + c + j;                               \
+                }                                                                                       \
+                for (; c < c1; c++)                                                                     \
+                    if (row[c] > t) out[n++] = r * w + c;                                               \
+                c0 = c1 - block;                                                                        \
+            }                                                                                           \
+        }                                                                                               \
+        return n;                                                                                       \
+    }                                                                                                   \
+    static void local_max_##SUF(const T *img, const int64_t *idx, uint8_t *keep, Py_ssize_t k,         \
+                                Py_ssize_t h, Py_ssize_t w) {                                           \
+        for (Py_ssize_t i = 0; i < k; i++) {                                                            \
+            int64_t p = idx[i];                                                                         \
+            Py_ssize_t r = p / w, c = p - r * w;                                                        \
+            T v = img[p];                                                                               \
+            int ok = 1;                                                                                 \
+            for (int dr = -1; dr <= 1 && ok; dr++) {                                                    \
+                if (r + dr < 0 || r + dr >= h) continue;                                                \
+                for (int dc = -1; dc <= 1; dc++) {                                                      \
+                    if ((dr == 0 && dc == 0) || c + dc < 0 || c + dc >= w) continue;                    \
+                    T u = img[p + dr * w + dc];                                                         \
+                    if (dr * w + dc < 0 ? !(v > u) : !(v >= u)) { ok = 0; break; }                      \
+                }                                                                                       \
+            }                                                                                           \
+            keep[i] = (uint8_t)ok;                                                                      \
+        }                                                                                               \
+    }                                                                                                   \
+    static void neighbours_##SUF(const T *img, const int64_t *peaks, double *values, uint8_t *inside,  \
+                                 Py_ssize_t k, Py_ssize_t h, Py_ssize_t w) {                            \
+        static const int off[8][2] = {{-1, -1}, {-1, 0}, {-1, 1}, {0, -1}, {0, 1}, {1, -1}, {1, 0}, {1, 1}}; \
+        for (Py_ssize_t i = 0; i < k; i++) {                                                            \
+            int64_t p = peaks[i];                                                                       \
+            Py_ssize_t r = p / w, c = p - r * w;                                                        \
+            for (int j = 0; j < 8; j++) {                                                               \
+                int in = r + off[j][0] >= 0 && r + off[j][0] < h && c + off[j][1] >= 0 && c + off[j][1] < w; \
+                inside[i * 8 + j] = (uint8_t)in;                                                        \
+                values[i * 8 + j] = (double)img[in ? p + off[j][0] * w + off[j][1] : p];                \
+            }                                                                                           \
+        }                                                                                               \
+    }
+
+DETECT_KERNELS(u8, uint8_t)
+DETECT_KERNELS(i8, int8_t)
+DETECT_KERNELS(u16, uint16_t)
+DETECT_KERNELS(i16, int16_t)
+DETECT_KERNELS(u32, uint32_t)
+DETECT_KERNELS(i32, int32_t)
+DETECT_KERNELS(u64, uint64_t)
+DETECT_KERNELS(i64, int64_t)
+DETECT_KERNELS(f32, float)
+DETECT_KERNELS(f64, double)
+
+/* type codes: the NumPy dtype's kind and item size, as "u2", "f4", ... */
+static int type_index(const char *code) {
+    static const char *codes[] = {"u1", "i1", "u2", "i2", "u4", "i4", "u8", "i8", "f4", "f8"};
+    for (int i = 0; i < 10; i++)
+        if (strcmp(code, codes[i]) == 0) return i;
+    PyErr_Format(PyExc_TypeError, "no detection kernel for pixel type %s", code);
+    return -1;
+}
+
+#define DISPATCH(I, CALL_U8, ...)                                                                      \
+    switch (I) {                                                                                        \
+    case 0: CALL_U8(u8, uint8_t); break;                                                                \
+    case 1: CALL_U8(i8, int8_t); break;                                                                 \
+    case 2: CALL_U8(u16, uint16_t); break;                                                              \
+    case 3: CALL_U8(i16, int16_t); break;                                                               \
+    case 4: CALL_U8(u32, uint32_t); break;                                                              \
+    case 5: CALL_U8(i32, int32_t); break;                                                               \
+    case 6: CALL_U8(u64, uint64_t); break;                                                              \
+    case 7: CALL_U8(i64, int64_t); break;                                                               \
+    case 8: CALL_U8(f32, float); break;                                                                 \
+    default: CALL_U8(f64, double); break;                                                               \
+    }
+
+/* candidates(image, levels (nby, nbx), out_idx (H W,) i8, H, W, block, nby, nbx, type) -> count */
+static PyObject *py_candidates(PyObject *self, PyObject *args) {
+    Py_buffer ib, lb, ob;
+    Py_ssize_t h, w, block, nby, nbx, n = 0;
+    const char *code;
+    if (!PyArg_ParseTuple(args, "y*y*w*nnnnns", &ib, &lb, &ob, &h, &w, &block, &nby, &nbx, &code)) return NULL;
+    int t = type_index(code);
+    if (t >= 0) {
+        Py_BEGIN_ALLOW_THREADS
+#define CALL(SUF, T) n = candidates_##SUF((const T *)ib.buf, (const T *)lb.buf, (int64_t *)ob.buf, h, w, block, nby, nbx)
+        DISPATCH(t, CALL)
+#undef CALL
+        Py_END_ALLOW_THREADS
+    }
+    PyBuffer_Release(&ib); PyBuffer_Release(&lb); PyBuffer_Release(&ob);
+    if (t < 0) return NULL;
+    return PyLong_FromSsize_t(n);
+}
+
+/* local_max(image, idx (K,) i8, keep_out (K,) u1, K, H, W, type) */
+static PyObject *py_local_max(PyObject *self, PyObject *args) {
+    Py_buffer ib, xb, kb;
+    Py_ssize_t k, h, w;
+    const char *code;
+    if (!PyArg_ParseTuple(args, "y*y*w*nnns", &ib, &xb, &kb, &k, &h, &w, &code)) return NULL;
+    int t = type_index(code);
+    if (t >= 0) {
+        Py_BEGIN_ALLOW_THREADS
+#define CALL(SUF, T) local_max_##SUF((const T *)ib.buf, (const int64_t *)xb.buf, (uint8_t *)kb.buf, k, h, w)
+        DISPATCH(t, CALL)
+#undef CALL
+        Py_END_ALLOW_THREADS
+    }
+    PyBuffer_Release(&ib); PyBuffer_Release(&xb); PyBuffer_Release(&kb);
+    if (t < 0) return NULL;
+    Py_RETURN_NONE;
+}
+
+/* neighbours(image, peaks (N,) i8, values_out (N, 8) f8, inside_out (N, 8) u1, N, H, W, type) */
+static PyObject *py_neighbours(PyObject *self, PyObject *args) {
+    Py_buffer ib, pb, vb, nb;
+    Py_ssize_t k, h, w;
+    const char *code;
+    if (!PyArg_ParseTuple(args, "y*y*w*w*nnns", &ib, &pb, &vb, &nb, &k, &h, &w, &code)) return NULL;
+    int t = type_index(code);
+    if (t >= 0) {
+        Py_BEGIN_ALLOW_THREADS
+#define CALL(SUF, T) neighbours_##SUF((const T *)ib.buf, (const int64_t *)pb.buf, (double *)vb.buf, (uint8_t *)nb.buf, k, h, w)
+        DISPATCH(t, CALL)
+#undef CALL
+        Py_END_ALLOW_THREADS
+    }
+    PyBuffer_Release(&ib); PyBuffer_Release(&pb); PyBuffer_Release(&vb); PyBuffer_Release(&nb);
+    if (t < 0) return NULL;
+    Py_RETURN_NONE;
+}
+
+/* ------------------------------------------------------------------ line filter */
+
+/* tap_sum(src0, src1, src2, terms (T, 2) i8 [source, shift], out, span, T, double?): out[i] = sum over
+ * the terms, in their order, of src[source][shift + i], i < span (float32 or float64 sources): the
+ * passes of _matched.line_filter done tile by tile (the tile stays in the cache; same sums). */
+#define TAP_SUM(T_)                                                                                     \
+    static void tap_sum_##T_(const T_ *const *src, const int64_t *terms, T_ *out, Py_ssize_t span,      \
+                             Py_ssize_t n_terms) {                                                      \
+        const Py_ssize_t tile = 2048;                                                                   \
+        for (Py_ssize_t i0 = 0; i0 < span; i0 += tile) {                                                \
+            Py_ssize_t n = span - i0 < tile ? span - i0 : tile;                                         \
+            T_ *o = out + i0;                                                                           \
+            const T_ *a = src[terms[0]] + terms[1] + i0;                                                \
+            for (Py_ssize_t i = 0; i < n; i++) o[i] = a[i];                                             \
+            for (Py_ssize_t t = 1; t < n_terms; t++) {                                                  \
+                const T_ *b = src[terms[2 * t]] + terms[2 * t + 1] + i0;                               \
+                for (Py_ssize_t i = 0; i < n; i++) o[i] += b[i];                                        \
+            }                                                                                           \
+        }                                                                                               \
+    }
+TAP_SUM(float)
+TAP_SUM(double)
+
+static PyObject *py_tap_sum(PyObject *self, PyObject *args) {
+    Py_buffer b0, b1, b2, tb, ob;
+    Py_ssize_t span, n_terms;
+    int is_double;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*w*nnp", &b0, &b1, &b2, &tb, &ob, &span, &n_terms, &is_double)) return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    if (is_double) {
+        const double *src[3] = {b0.buf, b1.buf, b2.buf};
+        tap_sum_double(src, tb.buf, ob.buf, span, n_terms);
+    } else {
+        const float *src[3] = {b0.buf, b1.buf, b2.buf};
+        tap_sum_float(src, tb.buf, ob.buf, span, n_terms);
+    }
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&b0); PyBuffer_Release(&b1); PyBuffer_Release(&b2); PyBuffer_Release(&tb);
+    PyBuffer_Release(&ob);
+    Py_RETURN_NONE;
+}
+
+/* ------------------------------------------------------------------ 3 x 3 box mean */
+
+/* box3(image (h, w) f4, out (h, w) f4, h, w): the 3 x 3 mean with edges extended, as
+ * scipy.ndimage.uniform_filter(image, 3, mode="nearest") computes it for float32: a running
+ * sum in double along axis 0, each value divided by 3 and rounded to float32, then the same
+ * along axis 1. */
+static void box3_line(const float *in, Py_ssize_t stride, Py_ssize_t n, float *out, Py_ssize_t ostride,
+                      double *line) {
+    line[0] = in[0];
+    for (Py_ssize_t i = 0; i < n; i++) line[i + 1] = in[i * stride];
+    line[n + 1] = in[(n - 1) * stride];
+    double tmp = 0.0;
+    for (int j = 0; j < 3; j++) tmp += line[j];
+    out[0] = (float)(tmp / 3.0);
+    for (Py_ssize_t i = 1; i < n; i++) {
+        tmp += line[i + 2] - line[i - 1];
+        out[i * ostride] = (float)(tmp / 3.0);
+    }
+}
+
+static PyObject *py_box3(PyObject *self, PyObject *args) {
+    Py_buffer ib, ob;
+    Py_ssize_t h, w;
+    if (!PyArg_ParseTuple(args, "y*w*nn", &ib, &ob, &h, &w)) return NULL;
+    Py_ssize_t n = h > w ? h : w;
+    double *line = malloc(sizeof(double) * (size_t)(n + 2));
+    float *tmp = malloc(sizeof(float) * (size_t)(h * w > 0 ? h * w : 1));
+    if (!line || !tmp) { free(line); free(tmp); PyBuffer_Release(&ib); PyBuffer_Release(&ob); return PyErr_NoMemory(); }
+    const float *in = ib.buf;
+    float *out = ob.buf;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t c = 0; c < w; c++) box3_line(in + c, w, h, tmp + c, w, line);      /* axis 0 */
+    for (Py_ssize_t r = 0; r < h; r++) box3_line(tmp + r * w, 1, w, out + r * w, 1, line);  /* axis 1 */
+    Py_END_ALLOW_THREADS
+    free(line);
+    free(tmp);
+    PyBuffer_Release(&ib);
+    PyBuffer_Release(&ob);
+    Py_RETURN_NONE;
+}
+
+/* ------------------------------------------------------------------ label_runs */
+
+static int64_t uf_find(int64_t *parent, int64_t i) {
+    while (parent[i] != i) {
+        parent[i] = parent[parent[i]];
+        i = parent[i];
+    }
+    return i;
+}
+
+/* labels (K,) of sorted flat indices idx (K,) of an image `width` wide; returns the count. */
+static PyObject *py_label_runs(PyObject *self, PyObject *args) {
+    Py_buffer idx_b, lab_b;
+    Py_ssize_t K, width;
+    int diagonal = 1;                               /* 8-connected; 0: 4-connected */
+    if (!PyArg_ParseTuple(args, "y*w*nn|p", &idx_b, &lab_b, &K, &width, &diagonal)) return NULL;
+    const int64_t *idx = idx_b.buf;
+    int64_t *labels = lab_b.buf;
+    int64_t n_labels = 0;
+    int64_t *run_start = malloc(sizeof(int64_t) * 4 * (size_t)(K > 0 ? K : 1));
+    if (!run_start) { PyBuffer_Release(&idx_b); PyBuffer_Release(&lab_b); return PyErr_NoMemory(); }
+    Py_BEGIN_ALLOW_THREADS
+    int64_t *run_end = run_start + K, *parent = run_end + K, *label_of = parent + K;
+    int64_t n_runs = 0;
+    for (Py_ssize_t i = 0; i < K; i++) {            /* runs: maximal horizontal segments */
+        if (i == 0 || idx[i] != idx[i - 1] + 1 || idx[i] / width != idx[i - 1] / width) {
+            run_start[n_runs] = idx[i];
+            parent[n_runs] = n_runs;
+            n_runs++;
+        }
+        run_end[n_runs - 1] = idx[i];
+        labels[i] = n_runs - 1;                     /* run number for now */
+    }
+    int64_t lo = 0;                                 /* first run of the next row that may touch */
+    for (int64_t r = 0; r < n_runs; r++) {
+        int64_t row = run_start[r] / width, c0 = run_start[r] - row * width, c1 = run_end[r] - row * width;
+        int64_t below = (row + 1) * width;
+        int64_t reach = diagonal ? 1 : 0;
+        int64_t first = below + (c0 - reach > 0 ? c0 - reach : 0);
+        int64_t last = below + (c1 + reach < width - 1 ? c1 + reach : width - 1);
+        if (lo <= r) lo = r + 1;
+        while (lo < n_runs && run_end[lo] < first) lo++;
+        for (int64_t q = lo; q < n_runs && run_start[q] <= last; q++) {
+            int64_t a = uf_find(parent, r), b = uf_find(parent, q);
+            if (a != b) {
+                if (a < b) parent[b] = a; else parent[a] = b;
+            }
+        }
+    }
+    for (int64_t r = 0; r < n_runs; r++) {          /* labels in order of each component's first run */
+        int64_t root = uf_find(parent, r);
+        if (root == r) label_of[r] = n_labels++;
+        else label_of[r] = label_of[root];
+    }
+    for (Py_ssize_t i = 0; i < K; i++) labels[i] = label_of[labels[i]];
+    Py_END_ALLOW_THREADS
+    free(run_start);
+    PyBuffer_Release(&idx_b);
+    PyBuffer_Release(&lab_b);
+    return PyLong_FromLongLong((long long)n_labels);
+}
+
+/* ------------------------------------------------------------------ suppress */
+
+/* dropped (M,) of peaks xy (M, 2) visited in `order` (strongest first). */
+static PyObject *py_suppress(PyObject *self, PyObject *args) {
+    Py_buffer xy_b, order_b, drop_b;
+    Py_ssize_t M;
+    double ux, uy, along_px, across_px;
+    if (!PyArg_ParseTuple(args, "y*y*w*ndddd", &xy_b, &order_b, &drop_b, &M, &ux, &uy, &along_px, &across_px))
+        return NULL;
+    const double *xy = xy_b.buf;
+    const int64_t *order = order_b.buf;
+    uint8_t *dropped = drop_b.buf;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t r = 0; r < M; r++) {
+        int64_t i = order[r];
+        if (dropped[i]) continue;
+        for (Py_ssize_t s = r + 1; s < M; s++) {
+            int64_t j = order[s];
+            double dx = xy[2 * j] - xy[2 * i], dy = xy[2 * j + 1] - xy[2 * i + 1];
+            if (fabs(dx * ux + dy * uy) <= along_px && fabs(dx * uy - dy * ux) <= across_px) dropped[j] = 1;
+        }
+    }
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&xy_b);
+    PyBuffer_Release(&order_b);
+    PyBuffer_Release(&drop_b);
+    Py_RETURN_NONE;
+}
+
+/* ------------------------------------------------------------------ erf_array */
+
+static PyObject *py_erf_array(PyObject *self, PyObject *args) {
+    Py_buffer in_b, out_b;
+    Py_ssize_t n;
+    if (!PyArg_ParseTuple(args, "y*w*n", &in_b, &out_b, &n)) return NULL;
+    const double *x = in_b.buf;
+    double *y = out_b.buf;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t i = 0; i < n; i++) y[i] = erf(x[i]);
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&in_b);
+    PyBuffer_Release(&out_b);
+    Py_RETURN_NONE;
+}
+
+static PyMethodDef methods[] = {
+    {"streak_equations", py_streak_equations, METH_VARARGS, "Normal equations of the smeared-PSF model."},
+    {"streak_fit", py_streak_fit, METH_VARARGS, "Levenberg-Marquardt fits of the smeared-PSF model."},
+    {"gauss_fit", py_gauss_fit, METH_VARARGS, "Gauss-Newton fits of the pixel-integrated Gaussian."},
+    {"gauss_normal", py_gauss_normal, METH_VARARGS, "Normal equations of the pixel-integrated Gaussian."},
+    {"block_stats", py_block_stats, METH_VARARGS, "Median, MAD and clipped RMS of block samples."},
+    {"median3", py_median3, METH_VARARGS, "3 x 3 median of a grid, edges extended."},
+    {"mesh_at", py_mesh_at, METH_VARARGS, "Bilinear background and noise between block centres."},
+    {"candidates", py_candidates, METH_VARARGS, "Flat indices of the pixels above their block's level."},
+    {"local_max", py_local_max, METH_VARARGS, "Candidates that are the maximum of their 3 x 3 neighbourhood."},
+    {"neighbours", py_neighbours, METH_VARARGS, "The 8 neighbours of pixels and whether they are inside."},
+    {"tap_sum", py_tap_sum, METH_VARARGS, "The line filter's shifted sums, tile by tile."},
+    {"box3", py_box3, METH_VARARGS, "3 x 3 mean of a float32 image, edges extended."},
+    {"label_runs", py_label_runs, METH_VARARGS, "8-connected components of sorted candidate pixels."},
+    {"suppress", py_suppress, METH_VARARGS, "Greedy suppression of peaks in a stronger one's footprint."},
+    {"erf_array", py_erf_array, METH_VARARGS, "erf of a float64 array."},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_ckernels", "shipstar's extraction kernels", -1, methods};
+
+PyMODINIT_FUNC PyInit__ckernels(void) { return PyModule_Create(&module); }

@@ -1,0 +1,290 @@
+"""The compiled kernels of the extraction (``_ckernels.c``): dtype, order and size checks.
+
+Each wrapper hands its C kernel C-contiguous arrays of the dtypes it reads and writes
+(the C code trusts them) and returns NumPy arrays:
+
+- :func:`streak_equations` / :func:`streak_fit`: the smeared-PSF model's weighted normal
+  equations and its Levenberg-Marquardt fit, star by star, with a common PSF sigma
+  (pixel fractions from :func:`shipstar.extract._streak._fraction_table`); the
+  arithmetic of ``_streak._jacobian`` / ``fit_streaks`` in another summation order;
+- :func:`gauss_fit` / :func:`gauss_normal`: the point stars' pixel-integrated Gaussian,
+  its Gauss-Newton fit (``_fit.fit_gaussian``) star by star, and its normal equations;
+- :func:`block_stats`, :func:`median3`, :func:`mesh_at`: the background mesh (block
+  medians, MADs and clipped RMS; its 3 x 3 median filter; bilinear values);
+- :func:`candidates`, :func:`local_max`, :func:`neighbours`: detection on the pixels
+  above a block-wise level (any integer or float pixel type);
+- :func:`tap_sum`: the line filter's sum of shifted partial-sum images;
+- :func:`box3`: the 3 x 3 mean of a float32 window (trails);
+- :func:`label_runs`: 8- (or 4-) connected components of sorted candidate pixels, numbered in
+  the order of their first pixel (as ``scipy.sparse.csgraph.connected_components`` on
+  the runs' graph numbered them);
+- :func:`suppress`: greedy suppression of the peaks within a stronger peak's footprint;
+- :func:`erf`: the error function of an array (libm).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from shipstar.extract import _ckernels
+from shipstar.extract._scratch import scratch
+
+__all__ = ["streak_equations", "streak_fit", "gauss_fit", "gauss_normal", "block_stats", "median3", "mesh_at",
+           "candidates", "local_max", "neighbours", "tap_sum", "box3", "label_runs", "suppress", "erf"]
+
+_TABLE_STEPS = 1024
+
+
+def _f8(a) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+def _window_args(win, nodes, table, half):
+    n_star = len(win.values)
+    wy, wx = win.values.shape[1:]
+    values = _f8(win.values)
+    valid = np.ascontiguousarray(win.valid, dtype=np.bool_).view(np.uint8)
+    if values.shape != (n_star, wy, wx) or valid.shape != values.shape:
+        raise ValueError("window arrays of unequal shapes")
+    t, w = _f8(nodes[0]), _f8(nodes[1])
+    if t.shape != w.shape or t.ndim != 1:
+        raise ValueError("nodes and weights of unequal shapes")
+    table = _f8(table)
+    if table.shape != (4, _TABLE_STEPS + 1, 2 * half + 1):
+        raise ValueError(f"fraction table of shape {table.shape}")
+    per_star = [_f8(a) for a in (win.x0, win.y0, win.noise)]
+    if any(a.shape != (n_star,) for a in per_star):
+        raise ValueError("per-star window arrays of the wrong length")
+    return (values, valid, *per_star, t, w, table), (n_star, wy, wx, len(t), int(half), _TABLE_STEPS)
+
+
+def streak_equations(p, win, nodes, table, half, *, fit_smear, inv_gain, want_jacobian=True):
+    """Normal matrix (N, k, k), gradient (N, k), model (N, P), variances (N, P) and
+    Jacobian (N, k, P) (None unless ``want_jacobian``) at parameters ``p`` (N, 7); k = 4, or 6
+    with the smear; P = Wy * Wx."""
+    arrays, dims = _window_args(win, nodes, table, half)
+    n_star, wy, wx = dims[:3]
+    p = _f8(p)
+    if p.shape != (n_star, 7):
+        raise ValueError(f"parameters of shape {p.shape}, expected ({n_star}, 7)")
+    k = 6 if fit_smear else 4
+    size = wy * wx
+    a = np.empty((n_star, k, k))
+    g = np.empty((n_star, k))
+    model = np.empty((n_star, size))
+    var = np.empty((n_star, size))
+    jac = np.empty((n_star, k, size) if want_jacobian else (0,))
+    _ckernels.streak_equations(p, *arrays, a, g, model, var, jac, *dims, int(bool(fit_smear)), float(inv_gain))
+    return a, g, model, var, (jac if want_jacobian else None)
+
+
+def streak_fit(p0, win, nodes, table, half, *, fit_smear, inv_gain, max_iterations, tol_px, converged_fraction,
+               converged_chi2):
+    """Levenberg-Marquardt fits from ``p0`` (N, 7): parameters (N, 7), converged (N,) bool,
+    the normal matrix (N, k, k) and model (N, P) of each star's last accepted parameters."""
+    arrays, dims = _window_args(win, nodes, table, half)
+    n_star, wy, wx = dims[:3]
+    p0 = _f8(p0)
+    if p0.shape != (n_star, 7):
+        raise ValueError(f"start parameters of shape {p0.shape}, expected ({n_star}, 7)")
+    k = 6 if fit_smear else 4
+    p = np.empty_like(p0)
+    a = np.empty((n_star, k, k))
+    model = np.empty((n_star, wy * wx))
+    converged = np.zeros(n_star, dtype=np.uint8)
+    _ckernels.streak_fit(p0, *arrays, p, a, model, converged, *dims, int(bool(fit_smear)), int(max_iterations),
+                         float(inv_gain), float(tol_px), float(converged_fraction), float(converged_chi2))
+    return p, converged.astype(bool), a, model
+
+
+def _point_args(win, p):
+    n_star, size = len(win.values), win.values.shape[-1]
+    values = _f8(win.values)
+    valid = np.ascontiguousarray(win.valid, dtype=np.bool_).view(np.uint8)
+    per_star = [_f8(a) for a in (win.x0, win.y0, win.noise)]
+    p = _f8(p)
+    if values.shape != (n_star, size, size) or valid.shape != values.shape or p.shape != (n_star, 5) \
+            or any(a.shape != (n_star,) for a in per_star):
+        raise ValueError("point-star windows or parameters of inconsistent shapes")
+    return p, (values, valid, *per_star), n_star, size
+
+
+def gauss_fit(win, p0, *, fit_sigma, inv_gain, tol_px, tol_chi2, max_iterations):
+    """Gauss-Newton fits from ``p0`` (N, 5) (x, y, F, b, sigma): parameters (N, 5) and the
+    length of each star's last (x, y) step (N,)."""
+    p0, arrays, n_star, size = _point_args(win, p0)
+    p = np.empty_like(p0)
+    step_norm = np.empty(n_star)
+    _ckernels.gauss_fit(p0, *arrays, p, step_norm, n_star, size, int(bool(fit_sigma)), float(inv_gain),
+                        float(tol_px), float(tol_chi2), int(max_iterations))
+    return p, step_norm
+
+
+def gauss_normal(win, p, *, fit_sigma, inv_gain):
+    """Weighted normal matrix (N, k, k) and gradient (N, k) at ``p`` (N, 5); k = 4, or 5 with sigma."""
+    p, arrays, n_star, size = _point_args(win, p)
+    k = 5 if fit_sigma else 4
+    a = np.empty((n_star, k, k))
+    g = np.empty((n_star, k))
+    _ckernels.gauss_normal(p, *arrays, a, g, n_star, size, int(bool(fit_sigma)), float(inv_gain))
+    return a, g
+
+
+def block_stats(samples, quantum_adu: float):
+    """Per block of ``samples`` (..., k), sorted along the last axis: median, median absolute
+    deviation, and the RMS of the deviations from the median within
+    ``3 max(1.4826 MAD, quantum_adu)``; each (...)."""
+    samples = _f8(samples)
+    shape, k = samples.shape[:-1], samples.shape[-1]
+    if k < 1:
+        raise ValueError("block_stats needs at least one sample a block")
+    med, mad, rms = (np.empty(shape) for _ in range(3))
+    _ckernels.block_stats(samples, med, mad, rms, med.size, k, float(quantum_adu))
+    return med, mad, rms
+
+
+def median3(grid):
+    """3 x 3 median of a 2-D grid, edges extended."""
+    grid = _f8(grid)
+    if grid.ndim != 2 or min(grid.shape) < 1:
+        raise ValueError(f"grid of shape {grid.shape}")
+    out = np.empty_like(grid)
+    _ckernels.median3(grid, out, *grid.shape)
+    return out
+
+
+def mesh_at(bg, noise, block_px: int, x_px, y_px):
+    """Bilinear ``bg`` and ``noise`` (n_by, n_bx) at pixel positions (arrays of equal shape)."""
+    bg, noise = _f8(bg), _f8(noise)
+    x, y = _f8(x_px), _f8(y_px)
+    if bg.shape != noise.shape or bg.ndim != 2 or x.shape != y.shape:
+        raise ValueError("mesh grids or positions of unequal shapes")
+    out_bg, out_noise = np.empty(x.shape), np.empty(x.shape)
+    _ckernels.mesh_at(bg, noise, x, y, out_bg, out_noise, *bg.shape, x.size, float(block_px))
+    return out_bg, out_noise
+
+
+def _pixels(image):
+    """A C-contiguous, native-order image of a type the kernels read, and its type code.
+
+    float16 is widened to float32 and longer floats narrowed to float64 (no kernel for them).
+    """
+    image = np.asarray(image)
+    if image.dtype.kind == "f" and image.dtype.itemsize < 4:
+        image = image.astype(np.float32)
+    elif image.dtype.kind == "f" and image.dtype.itemsize > 8:
+        image = image.astype(np.float64)
+    image = np.ascontiguousarray(image, dtype=image.dtype.newbyteorder("="))
+    if image.ndim != 2:
+        raise ValueError(f"image of shape {image.shape}")
+    return image, f"{image.dtype.kind}{image.dtype.itemsize}"
+
+
+def _flat_indices(idx, size: int) -> np.ndarray:
+    """``idx`` as a contiguous 1-D int64 array, every index within an image of ``size`` pixels."""
+    idx = np.ascontiguousarray(idx, dtype=np.int64).reshape(-1)
+    if idx.size and (int(idx.min()) < 0 or int(idx.max()) >= size):
+        raise ValueError("pixel indices outside the image")
+    return idx
+
+
+def candidates(image, level, block_px: int):
+    """Sorted flat indices (K,) int64 of the pixels of ``image`` (H, W) above the ``level`` of
+    their block (n_by, n_bx), in the image's own type; pixels past the last block row and
+    column belong to it."""
+    image, code = _pixels(image)
+    level = np.ascontiguousarray(level, dtype=image.dtype)
+    if level.ndim != 2 or min(level.shape) < 1 or int(block_px) < 1:
+        raise ValueError(f"levels of shape {level.shape}, blocks of {block_px} px")
+    out = scratch("kernels.candidates", (image.size,), np.int64)
+    n = _ckernels.candidates(image, level, out, *image.shape, int(block_px), *level.shape, code)
+    return out[:n].copy()
+
+
+def local_max(image, idx):
+    """(K,) bool: pixels ``idx`` (flat) that are the maximum of their 3 x 3 neighbourhood,
+    ties going to the smaller flat index."""
+    image, code = _pixels(image)
+    idx = _flat_indices(idx, image.size)
+    keep = np.empty(idx.shape, dtype=np.uint8)
+    _ckernels.local_max(image, idx, keep, idx.size, *image.shape, code)
+    return keep.view(bool)
+
+
+def neighbours(image, peaks):
+    """Values (N, 8) float64 of the 8 neighbours of pixels ``peaks`` (flat), in the order
+    (-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1) (row, column),
+    and inside (N, 8) bool; a neighbour off the image has the pixel's own value."""
+    image, code = _pixels(image)
+    peaks = _flat_indices(peaks, image.size)
+    values = np.empty((peaks.size, 8))
+    inside = np.empty((peaks.size, 8), dtype=np.uint8)
+    _ckernels.neighbours(image, peaks, values, inside, peaks.size, *image.shape, code)
+    return values, inside.view(bool)
+
+
+def tap_sum(terms, out, span: int):
+    """``out[i] = sum(src[shift + i] for src, shift in terms)``, i < ``span``, summed in the
+    order of ``terms`` (a list of (1-D array, shift); at most 3 distinct arrays, all of
+    ``out``'s dtype, float32 or float64, C-contiguous)."""
+    sources = []
+    for src, _ in terms:
+        if not any(src is x for x in sources):
+            sources.append(src)
+    if len(sources) > 3 or not terms:
+        raise ValueError("tap_sum takes 1 to 3 source arrays")
+    dtype = out.dtype
+    if dtype not in (np.float32, np.float64) or not out.flags.c_contiguous or out.size < span:
+        raise ValueError("tap_sum's output must be a contiguous float32 or float64 array of span values")
+    for src in sources:
+        if src.dtype != dtype or not src.flags.c_contiguous or src.ndim != 1:
+            raise ValueError("tap_sum's sources must be contiguous 1-D arrays of the output's dtype")
+    table = np.array([(next(k for k, x in enumerate(sources) if x is src), int(shift)) for src, shift in terms],
+                     dtype=np.int64)
+    if np.any(table[:, 1] < 0) or any(int(shift) + span > src.size for src, shift in terms):
+        raise ValueError("tap_sum's shifts reach past a source")
+    padded = sources + [sources[0]] * (3 - len(sources))
+    _ckernels.tap_sum(*padded, table, out, int(span), len(terms), dtype == np.float64)
+
+
+def label_runs(idx, width: int, *, diagonal: bool = True):
+    """``(labels (K,) int64, n)``: 8-connected (``diagonal=False``: 4-connected) components
+    of the sorted flat indices ``idx`` (K,), numbered in the order of their first pixel."""
+    idx = np.ascontiguousarray(idx, dtype=np.int64).reshape(-1)
+    if idx.size > 1 and not np.all(idx[1:] > idx[:-1]):
+        raise ValueError("label_runs needs sorted, distinct flat indices")
+    labels = np.empty(idx.shape, dtype=np.int64)
+    n = _ckernels.label_runs(idx, labels, idx.size, int(width), bool(diagonal))
+    return labels, int(n)
+
+
+def box3(image) -> np.ndarray:
+    """3 x 3 mean (H, W) float32 of a 2-D image, edges extended: the values of
+    ``scipy.ndimage.uniform_filter(image.astype(np.float32), 3, mode="nearest")``."""
+    image = np.ascontiguousarray(image, dtype=np.float32)
+    if image.ndim != 2 or min(image.shape) < 1:
+        raise ValueError(f"image of shape {image.shape}")
+    out = np.empty_like(image)
+    _ckernels.box3(image, out, *image.shape)
+    return out
+
+
+def suppress(xy, order, u, along_px: float, across_px: float) -> np.ndarray:
+    """(M,) bool: peaks ``xy`` (M, 2) dropped, visiting them in ``order`` (strongest first):
+    a peak not dropped drops every weaker one within ``along_px`` along the unit vector
+    ``u`` and ``across_px`` across it."""
+    xy = _f8(xy)
+    order = np.ascontiguousarray(order, dtype=np.int64)
+    if xy.shape != (len(order), 2):
+        raise ValueError("peaks and order of unequal lengths")
+    dropped = np.zeros(len(order), dtype=np.uint8)
+    _ckernels.suppress(xy, order, dropped, len(order), float(u[0]), float(u[1]), float(along_px), float(across_px))
+    return dropped.astype(bool)
+
+
+def erf(x) -> np.ndarray:
+    """The error function of an array (any shape), float64."""
+    x = _f8(x)
+    out = np.empty_like(x)
+    _ckernels.erf_array(x, out, x.size)
+    return out

@@ -1,0 +1,1554 @@
+/* Compiled hot loops of star identification (shipstar.identify._ckernels).
+ *
+ * Plain C99 on Python's buffer protocol (no NumPy headers); the argument checks (dtype,
+ * C order, sizes) are in shipstar/identify/_kernels.py, the only caller.
+ *
+ * lis_solve:  lost-in-space from the pattern search to the accepted match: 4-star
+ *             patterns of the brightest stars in batches, edge ratios, probe keys, the
+ *             two-level key index, the exact re-check and star pairing, then per
+ *             candidate QUEST, prediction, association, focal-scale / radial refit and
+ *             the false-match probability (_lost_in_space.py's docstring and
+ *             docs/identification.md give the rules; this is the same computation).
+ * track_solve: tracking from a prior attitude (_tracking.py's docstring: prediction,
+ *             common shift, shifted pairs, fit and fine gate, vote).
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#define RAD2ASEC 206264.80624709636
+#define N_GATES 4
+static const double GATE_FRACTIONS[N_GATES] = {1.0, 0.5, 0.25, 0.125};
+
+static double now_s(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+/* ---------------------------------------------------------------------------------
+ * QUEST (shipstar.attitude._quest.quest_single, the same steps and constants)
+ * ------------------------------------------------------------------------------- */
+
+static const double FRAME_SIGNS[4][3] = {{1, 1, 1}, {1, -1, -1}, {-1, 1, -1}, {-1, -1, 1}};
+
+static void k_parts(const double *b, double *s, double *sigma, double *z)
+{
+    s[0] = 2.0 * b[0]; s[1] = b[1] + b[3]; s[2] = b[2] + b[6];
+    s[3] = 2.0 * b[4]; s[4] = b[5] + b[7]; s[5] = 2.0 * b[8];
+    *sigma = b[0] + b[4] + b[8];
+    z[0] = b[5] - b[7]; z[1] = b[6] - b[2]; z[2] = b[1] - b[3];
+}
+
+static void sym_mul(const double *s, const double *x, double *out)
+{
+    out[0] = s[0] * x[0] + s[1] * x[1] + s[2] * x[2];
+    out[1] = s[1] * x[0] + s[3] * x[1] + s[4] * x[2];
+    out[2] = s[2] * x[0] + s[4] * x[1] + s[5] * x[2];
+}
+
+static void kappa_delta(const double *s, double *kappa, double *delta)
+{
+    double m00 = s[3] * s[5] - s[4] * s[4];
+    *kappa = m00 + s[0] * s[5] - s[2] * s[2] + s[0] * s[3] - s[1] * s[1];
+    *delta = s[0] * m00 - s[1] * (s[1] * s[5] - s[4] * s[2]) + s[2] * (s[1] * s[4] - s[3] * s[2]);
+}
+
+static void lambda_max(const double *b, double *lam_out, double *dp_out)
+{
+    double s[6], sigma, z[3], kappa, delta, sz[3];
+    k_parts(b, s, &sigma, z);
+    kappa_delta(s, &kappa, &delta);
+    sym_mul(s, z, sz);
+    double zz = z[0] * z[0] + z[1] * z[1] + z[2] * z[2];
+    double zsz = z[0] * sz[0] + z[1] * sz[1] + z[2] * sz[2];
+    double zs2z = sz[0] * sz[0] + sz[1] * sz[1] + sz[2] * sz[2];
+    double ca = sigma * sigma - kappa, cb = sigma * sigma + zz, cc = delta + zsz;
+    double p2 = -(ca + cb), p1 = -cc, p0 = ca * cb + cc * sigma - zs2z;
+    double lam = 1.0;
+    for (int it = 0; it < 60; it++) {
+        double lam2 = lam * lam;
+        double f = (lam2 + p2) * lam2 + p1 * lam + p0;
+        double fp = (4.0 * lam2 + 2.0 * p2) * lam + p1;
+        double step = fp != 0.0 ? f / fp : 0.0;
+        lam = lam - step;
+        if (fabs(step) <= 1e-15) break;
+    }
+    *lam_out = lam;
+    *dp_out = (4.0 * lam * lam + 2.0 * p2) * lam + p1;
+}
+
+static void flip_b(const double *b, int frame, double *out)
+{
+    const double *g = FRAME_SIGNS[frame];
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) out[3 * i + j] = g[j] * b[3 * i + j];
+}
+
+static void frame_solution(const double *b, double lam, double *x, double *gamma)
+{
+    double s[6], sigma, z[3], kappa, delta, sz[3], ssz[3];
+    k_parts(b, s, &sigma, z);
+    kappa_delta(s, &kappa, &delta);
+    double alpha = lam * lam - sigma * sigma + kappa;
+    double beta = lam - sigma;
+    *gamma = (lam + sigma) * alpha - delta;
+    sym_mul(s, z, sz);
+    sym_mul(s, sz, ssz);
+    for (int k = 0; k < 3; k++) x[k] = alpha * z[k] + beta * sz[k] + ssz[k];
+}
+
+static double rayleigh(const double *b, const double *qv, double q4)
+{
+    double s[6], sigma, z[3], sq[3];
+    k_parts(b, s, &sigma, z);
+    sym_mul(s, qv, sq);
+    double qq = qv[0] * qv[0] + qv[1] * qv[1] + qv[2] * qv[2];
+    double num = (qv[0] * sq[0] + qv[1] * sq[1] + qv[2] * sq[2] - sigma * qq
+                  + 2.0 * q4 * (z[0] * qv[0] + z[1] * qv[1] + z[2] * qv[2]) + sigma * q4 * q4);
+    return num / (qq + q4 * q4);
+}
+
+/* C (row-major 3x3) from the profile matrix b (row-major B = sum v w^T / n) */
+static void quest_b(const double *b, double *C)
+{
+    double lam, dp, x[3], gamma, bk[9];
+    lambda_max(b, &lam, &dp);
+    frame_solution(b, lam, x, &gamma);
+    int k = 0;
+    if (gamma < 0.3 * 0.3 * dp) {
+        double best = -INFINITY;
+        for (int i = 0; i < 4; i++) {
+            double xi[3], gi;
+            flip_b(b, i, bk);
+            frame_solution(bk, lam, xi, &gi);
+            if (gi > best) { best = gi; k = i; x[0] = xi[0]; x[1] = xi[1]; x[2] = xi[2]; gamma = gi; }
+        }
+    }
+    flip_b(b, k, bk);
+    double lr = rayleigh(bk, x, gamma);
+    frame_solution(bk, lr, x, &gamma);
+    double n = sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2] + gamma * gamma);
+    if (!(n > 0.0)) n = NAN;
+    double q0 = x[0] / n, q1 = x[1] / n, q2 = x[2] / n, q4 = gamma / n;
+    double d = q4 * q4 - (q0 * q0 + q1 * q1 + q2 * q2);
+    double A[9] = {d + 2 * q0 * q0, 2 * q0 * q1 + 2 * q4 * q2, 2 * q0 * q2 - 2 * q4 * q1,
+                   2 * q1 * q0 - 2 * q4 * q2, d + 2 * q1 * q1, 2 * q1 * q2 + 2 * q4 * q0,
+                   2 * q2 * q0 + 2 * q4 * q1, 2 * q2 * q1 - 2 * q4 * q0, d + 2 * q2 * q2};
+    const double *g = FRAME_SIGNS[k];
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) C[3 * i + j] = A[3 * i + j] * g[j];
+}
+
+/* C_ref_from_body for n matched unit vectors w (body) and v (ref), rows of 3;
+ * with C_near (not NULL): C_near @ quest(w, v @ C_near) (_verify.wahba). */
+static void wahba(const double *w, const double *v, int n, const double *C_near, double *C)
+{
+    double b[9] = {0};
+    for (int i = 0; i < n; i++) {
+        double vi[3];
+        if (C_near) {
+            for (int c = 0; c < 3; c++)
+                vi[c] = v[3 * i] * C_near[c] + v[3 * i + 1] * C_near[3 + c] + v[3 * i + 2] * C_near[6 + c];
+        } else {
+            vi[0] = v[3 * i]; vi[1] = v[3 * i + 1]; vi[2] = v[3 * i + 2];
+        }
+        for (int r = 0; r < 3; r++)
+            for (int c = 0; c < 3; c++) b[3 * r + c] += vi[r] * w[3 * i + c];
+    }
+    double inv = 1.0 / n;
+    for (int k = 0; k < 9; k++) b[k] *= inv;
+    if (!C_near) {
+        quest_b(b, C);
+        return;
+    }
+    double Cs[9];
+    quest_b(b, Cs);
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++)
+            C[3 * r + c] = C_near[3 * r] * Cs[c] + C_near[3 * r + 1] * Cs[3 + c] + C_near[3 * r + 2] * Cs[6 + c];
+}
+
+/* ---------------------------------------------------------------------------------
+ * Binomial tail P(X >= k), X ~ Binomial(n, p) (scipy.special.bdtrc(k - 1, n, p))
+ * ------------------------------------------------------------------------------- */
+
+static double binom_tail(long n, long k, double p)
+{
+    if (k <= 0) return 1.0;
+    if (k > n) return 0.0;
+    if (p <= 0.0) return 0.0;
+    if (p >= 1.0) return 1.0;
+    /* sum of the terms i = k..n, relative to the first (recurrence), then scaled */
+    double r = p / (1.0 - p), rel = 1.0, sum = 1.0;
+    for (long i = k; i < n; i++) {
+        rel *= r * (double)(n - i) / (double)(i + 1);
+        sum += rel;
+        if (rel < 1e-17 * sum) break;
+    }
+    double log_first = lgamma((double)n + 1.0) - lgamma((double)k + 1.0) - lgamma((double)(n - k) + 1.0)
+                       + (double)k * log(p) + (double)(n - k) * log1p(-p);
+    double v = exp(log_first + log(sum));
+    return v < 1.0 ? v : 1.0;
+}
+
+/* min_j factors_j P(Bin(n_j, p1_j) >= k_j) over the gates, lazily (_verify.min_chance) */
+static double min_chance(const double *factors, const long *n, const long *k, const double *p1,
+                         double stop)
+{
+    double first = factors[0] * binom_tail(n[0], k[0], p1[0]);
+    if (first <= stop) return first;
+    double best = first;
+    for (int g = 1; g < N_GATES; g++) {
+        double v = factors[g] * binom_tail(n[g], k[g], p1[g]);
+        if (v < best) best = v;
+    }
+    return best;
+}
+
+/* ---------------------------------------------------------------------------------
+ * Sky grid and prediction
+ * ------------------------------------------------------------------------------- */
+
+static long cell_of_one(const double *v, long n)
+{
+    double x = v[0], y = v[1], z = v[2], ax = fabs(x), ay = fabs(y), az = fabs(z), m, a, b;
+    int major, positive;
+    if (ax >= ay && ax >= az) { major = 0; m = ax; a = y; b = z; positive = x >= 0; }
+    else if (ay >= az) { major = 1; m = ay; a = x; b = z; positive = y >= 0; }
+    else { major = 2; m = az; a = x; b = y; positive = z >= 0; }
+    long face = 2 * major + (positive ? 0 : 1);
+    const double qp = M_PI / 4;
+    double fi = (atan(a / m) / qp + 1.0) * 0.5 * (double)n;
+    double fj = (atan(b / m) / qp + 1.0) * 0.5 * (double)n;
+    long i = (long)fi, j = (long)fj;      /* truncation as Python's int() */
+    if (i < 0) i = 0;
+    if (i > n - 1) i = n - 1;
+    if (j < 0) j = 0;
+    if (j > n - 1) j = n - 1;
+    return (face * n + i) * n + j;
+}
+
+typedef struct {
+    const double *u64;          /* (S, 3) */
+    const float *u32;           /* (S, 3) */
+    const uint32_t *pstars;     /* (P, 4) */
+    const uint16_t *key_lo;     /* (P,) */
+    const int32_t *key_hi_start;
+    const int32_t *cell_start;
+    const uint32_t *cell_index;
+    const double *cell_u;       /* (M, 3): u64[cell_index], read in cell order */
+    long grid_n, key_bits, lo_bits, bins, n_patterns_db;
+} Db;
+
+typedef struct {
+    long m, cap, n_in;
+    long *rows;                 /* database rows */
+    long *qpos;                 /* positions in the cell arrays */
+    double *ty, *tz;
+    long *ord, *best;           /* scratch of associate() */
+    double *sty;
+} Pred;
+
+static int pred_reserve(Pred *p, long m)
+{
+    if (m <= p->cap) return 0;
+    long cap = m + 64;
+    long *r = realloc(p->rows, cap * sizeof(long));
+    if (!r) return -1;
+    p->rows = r;
+    double *a = realloc(p->ty, cap * sizeof(double));
+    if (!a) return -1;
+    p->ty = a;
+    a = realloc(p->tz, cap * sizeof(double));
+    if (!a) return -1;
+    p->tz = a;
+    a = realloc(p->sty, cap * sizeof(double));
+    if (!a) return -1;
+    p->sty = a;
+    r = realloc(p->ord, cap * sizeof(long));
+    if (!r) return -1;
+    p->ord = r;
+    r = realloc(p->qpos, cap * sizeof(long));
+    if (!r) return -1;
+    p->qpos = r;
+    r = realloc(p->best, cap * sizeof(long));
+    if (!r) return -1;
+    p->best = r;
+    p->cap = cap;
+    return 0;
+}
+
+static void pred_free(Pred *p)
+{
+    free(p->rows); free(p->ty); free(p->tz); free(p->ord); free(p->best); free(p->sty); free(p->qpos);
+    p->rows = NULL; p->ty = p->tz = p->sty = NULL; p->ord = p->best = p->qpos = NULL;
+    p->cap = p->m = 0;
+}
+
+/* box: centre y, centre z, half y, half z */
+static int predict(const Db *db, const double *C, const double *box, double margin, Pred *out)
+{
+    double bore[3] = {C[0], C[3], C[6]};
+    long c = cell_of_one(bore, db->grid_n);
+    long a = db->cell_start[c], e = db->cell_start[c + 1];
+    if (pred_reserve(out, e - a) < 0) return -1;
+    long m = 0, n_in = 0;
+    for (long q = a; q < e; q++) {
+        long r = db->cell_index[q];
+        const double *u = db->cell_u + 3 * q;
+        double w0 = u[0] * C[0] + u[1] * C[3] + u[2] * C[6];
+        double w1 = u[0] * C[1] + u[1] * C[4] + u[2] * C[7];
+        double w2 = u[0] * C[2] + u[1] * C[5] + u[2] * C[8];
+        double ty = w1 / w0, tz = w2 / w0;
+        double oy = fabs(ty - box[0]), oz = fabs(tz - box[1]);
+        if (oy <= box[2] + margin && oz <= box[3] + margin) {
+            out->rows[m] = r; out->qpos[m] = q; out->ty[m] = ty; out->tz[m] = tz; m++;
+            if (oy <= box[2] && oz <= box[3]) n_in++;
+        }
+    }
+    out->m = m;
+    out->n_in = n_in;
+    return 0;
+}
+
+static void reproject(const Db *db, const double *C, const double *box, Pred *p)
+{
+    long n_in = 0;
+    for (long q = 0; q < p->m; q++) {
+        const double *u = db->cell_u + 3 * p->qpos[q];
+        double w0 = u[0] * C[0] + u[1] * C[3] + u[2] * C[6];
+        double w1 = u[0] * C[1] + u[1] * C[4] + u[2] * C[7];
+        double w2 = u[0] * C[2] + u[1] * C[5] + u[2] * C[8];
+        p->ty[q] = w1 / w0;
+        p->tz[q] = w2 / w0;
+        if (fabs(p->ty[q] - box[0]) <= box[2] && fabs(p->tz[q] - box[1]) <= box[3]) n_in++;
+    }
+    p->n_in = n_in;
+}
+
+static int cmp_by_key(const void *a, const void *b);
+static const double *SORT_KEY;          /* qsort has no context argument in C99 */
+
+/* ord: the predictions sorted by ty (ties by index), sty their ty */
+static void sort_by_ty(const Pred *p, long *ord, double *sty)
+{
+    long m = p->m;
+    for (long q = 0; q < m; q++) ord[q] = q;
+    if (m > 48) {
+        SORT_KEY = p->ty;
+        qsort(ord, m, sizeof(long), cmp_by_key);
+    } else {
+        for (long i = 1; i < m; i++) {
+            long x = ord[i];
+            double kx = p->ty[x];
+            long j = i - 1;
+            while (j >= 0 && p->ty[ord[j]] > kx) { ord[j + 1] = ord[j]; j--; }
+            ord[j + 1] = x;
+        }
+    }
+    for (long q = 0; q < m; q++) sty[q] = p->ty[ord[q]];
+}
+
+static int cmp_by_key(const void *a, const void *b)
+{
+    long x = *(const long *)a, y = *(const long *)b;
+    double kx = SORT_KEY[x], ky = SORT_KEY[y];
+    if (kx != ky) return kx < ky ? -1 : 1;
+    return x < y ? -1 : (x > y);
+}
+
+/* Nearest prediction of each measured star (ty, tz (n,)) within gate, one to one: the
+ * closer star keeps a contested prediction (ties: the earlier row).  Writes the rows
+ * (ascending), prediction indices and squared distances; returns their number.
+ * The nearest prediction overall is within the gate exactly when one is, so only the
+ * predictions whose ty is within the gate are looked at (sorted by ty: a band); ties
+ * go to the lower prediction index, as argmin.
+ * best_k, ord: p->m longs scratch, sty: p->m doubles scratch.
+ * lost (may be NULL): (row, j) of the stars that lost a contested prediction. */
+static long associate(const double *ty, const double *tz, long n, const Pred *p, double gate,
+                      long *img, long *jj, double *d2, long *best_k, long *ord, double *sty,
+                      long *lost_row, long *lost_j, long *n_lost)
+{
+    long cnt = 0;
+    double g2 = gate * gate;
+    if (n_lost) *n_lost = 0;
+    if (p->m == 0) return 0;
+    int dup = 0;
+    long m = p->m;
+    sort_by_ty(p, ord, sty);
+    for (long q = 0; q < m; q++) best_k[q] = -1;
+    for (long i = 0; i < n; i++) {
+        double y = ty[i], lo_y = y - gate, hi_y = y + gate;
+        if (!(lo_y <= hi_y)) continue;                      /* NaN */
+        long a = 0, b = m;                                  /* first sty >= lo_y */
+        while (a < b) {
+            long c = (a + b) >> 1;
+            if (sty[c] < lo_y) a = c + 1; else b = c;
+        }
+        double best = INFINITY;
+        long bj = -1;
+        for (long s = a; s < m && sty[s] <= hi_y; s++) {
+            long q = ord[s];
+            double dy = y - p->ty[q], dz = tz[i] - p->tz[q];
+            double d = dy * dy + dz * dz;
+            if (d < best || (d == best && q < bj)) { best = d; bj = q; }
+        }
+        if (bj >= 0 && best <= g2) {
+            img[cnt] = i; jj[cnt] = bj; d2[cnt] = best;
+            long prev = best_k[bj];
+            if (prev < 0) best_k[bj] = cnt;
+            else {
+                dup = 1;
+                if (best < d2[prev]) best_k[bj] = cnt;
+            }
+            cnt++;
+        }
+    }
+    if (!dup) return cnt;
+    long out = 0;
+    for (long c = 0; c < cnt; c++) {
+        if (best_k[jj[c]] == c) {
+            img[out] = img[c]; jj[out] = jj[c]; d2[out] = d2[c]; out++;
+        } else if (n_lost) {
+            lost_row[*n_lost] = img[c]; lost_j[*n_lost] = jj[c]; (*n_lost)++;
+        }
+    }
+    return out;
+}
+
+/* ---------------------------------------------------------------------------------
+ * Lost-in-space
+ * ------------------------------------------------------------------------------- */
+
+/* the 24 permutations of four stars (itertools order) and their edge maps */
+static int PERM[24][4];
+static int PERM_EDGES[24][6];
+static const int PAIR_A[6] = {0, 0, 0, 1, 1, 2};
+static const int PAIR_B[6] = {1, 2, 3, 2, 3, 3};
+
+static void init_perms(void)
+{
+    int k = 0;
+    for (int a = 0; a < 4; a++)
+        for (int b = 0; b < 4; b++)
+            for (int c = 0; c < 4; c++)
+                for (int d = 0; d < 4; d++) {
+                    if (a == b || a == c || a == d || b == c || b == d || c == d) continue;
+                    PERM[k][0] = a; PERM[k][1] = b; PERM[k][2] = c; PERM[k][3] = d; k++;
+                }
+    for (int p = 0; p < 24; p++)
+        for (int e = 0; e < 6; e++) {
+            int i = PERM[p][PAIR_A[e]], j = PERM[p][PAIR_B[e]];
+            if (i > j) { int t = i; i = j; j = t; }
+            for (int f = 0; f < 6; f++)
+                if (PAIR_A[f] == i && PAIR_B[f] == j) PERM_EDGES[p][e] = f;
+        }
+}
+
+static void sort6(double *e)
+{
+    for (int i = 1; i < 6; i++) {
+        double x = e[i];
+        int j = i - 1;
+        while (j >= 0 && e[j] > x) { e[j + 1] = e[j]; j--; }
+        e[j + 1] = x;
+    }
+}
+
+static double clip1(double x) { return x < -1.0 ? -1.0 : (x > 1.0 ? 1.0 : x); }
+
+typedef struct {
+    long owner;                 /* pattern row in the batch */
+    long order;                 /* discovery order (stable sort) */
+    double err;
+    double scale;
+    long cat[4];
+} Cand;
+
+static int cand_cmp(const void *a, const void *b)
+{
+    const Cand *x = a, *y = b;
+    if (x->owner != y->owner) return x->owner < y->owner ? -1 : 1;
+    if (x->err != y->err) return x->err < y->err ? -1 : 1;
+    return x->order < y->order ? -1 : (x->order > y->order);
+}
+
+typedef struct {
+    /* field: usable stars (brightest first) */
+    long n;
+    const double *t;            /* (n, 2) nominal tangent plane */
+    const double *u0;           /* (n, 3) unit vectors at scale 1 */
+    /* parameters */
+    double e_edge, max_edge, min_edge, model_tol, ftol, error_rad, half_diag, gate_fine,
+        area0, p_false_max, max_time_s, t_start;
+    double bounds[4];
+    int fit, fit_radial;
+    long min_matches, max_candidates;
+    long db_n_patterns;
+    /* counters */
+    long n_verified, n_patterns;
+    /* scratch */
+    double *ty, *tz, *w, *v;    /* (n,), (n,), (n, 3), (n, 3) */
+    long *img, *jj, *img2, *jj2, *cat, *cat2, *lost_r, *lost_j;
+    double *d2, *d2b;
+    Pred pred;
+    /* result */
+    double C[9], s, k1, p_false, rms;
+    long n_match;
+} Lis;
+
+static void lis_box(const Lis *L, double s, double *box)
+{
+    const double *b = L->bounds;
+    box[0] = 0.5 * (b[0] + b[1]) * s; box[1] = 0.5 * (b[2] + b[3]) * s;
+    box[2] = 0.5 * (b[1] - b[0]) * s; box[3] = 0.5 * (b[3] - b[2]) * s;
+}
+
+/* unit vector of usable star i at focal scale s and radial k1 (field.unit) */
+static void unit_of(const Lis *L, long i, double s, double k1, double *out)
+{
+    if (s == 1.0 && k1 == 0.0) {
+        out[0] = L->u0[3 * i]; out[1] = L->u0[3 * i + 1]; out[2] = L->u0[3 * i + 2];
+        return;
+    }
+    double ty = L->t[2 * i], tz = L->t[2 * i + 1], f = s;
+    if (k1 != 0.0) f = s * (1.0 + k1 * (ty * ty + tz * tz));
+    ty *= f; tz *= f;
+    double nn = sqrt(1.0 + ty * ty + tz * tz);
+    out[0] = 1.0 / nn; out[1] = ty / nn; out[2] = tz / nn;
+}
+
+static void t_true_all(const Lis *L, double s, double k1, double *ty, double *tz)
+{
+    for (long i = 0; i < L->n; i++) {
+        double a = L->t[2 * i], b = L->t[2 * i + 1], f = s;
+        if (k1 != 0.0) f = s * (1.0 + k1 * (a * a + b * b));
+        ty[i] = a * f; tz[i] = b * f;
+    }
+}
+
+/* _verify.refine: attitude and (fit) focal scale / radial term from k matched stars */
+static void refine(Lis *L, const Db *db, const long *img, const long *cat, long k, double *s_io,
+                   double *k1_io, int fit_scale, int fit_k1, double *C)
+{
+    double s = *s_io, k1 = *k1_io;
+    for (long i = 0; i < k; i++) {
+        unit_of(L, img[i], s, k1, L->w + 3 * i);
+        memcpy(L->v + 3 * i, db->u64 + 3 * cat[i], 3 * sizeof(double));
+    }
+    wahba(L->w, L->v, (int)k, NULL, C);
+    if (!fit_scale || k < 3) return;
+    double h2 = L->half_diag * L->half_diag;
+    for (int round = 0; round < 2; round++) {
+        /* tc: catalog stars projected with C; x = t, y = t |t|^2 (interleaved y, z) */
+        double sxx = 0, sxy = 0, syy = 0, sxc = 0, syc = 0, sgg = 0, sgc = 0;
+        for (long i = 0; i < k; i++) {
+            const double *v = L->v + 3 * i;
+            double w0 = v[0] * C[0] + v[1] * C[3] + v[2] * C[6];
+            double w1 = v[0] * C[1] + v[1] * C[4] + v[2] * C[7];
+            double w2 = v[0] * C[2] + v[1] * C[5] + v[2] * C[8];
+            double tc[2] = {w1 / w0, w2 / w0};
+            double ty = L->t[2 * img[i]], tz = L->t[2 * img[i] + 1];
+            double r2 = ty * ty + tz * tz, tt[2] = {ty, tz};
+            for (int a = 0; a < 2; a++) {
+                double x = tt[a], y = tt[a] * r2, g = tt[a] * (1.0 + k1 * r2);
+                sxx += x * x; sxy += x * y; syy += y * y; sxc += x * tc[a]; syc += y * tc[a];
+                sgg += g * g; sgc += g * tc[a];
+            }
+        }
+        int done = 0;
+        if (fit_k1 && k >= 6) {
+            double det = sxx * syy - sxy * sxy;
+            if (det != 0.0) {
+                double s_new = (syy * sxc - sxy * syc) / det;
+                double b = (sxx * syc - sxy * sxc) / det;
+                double k_new = b / s_new;
+                if (fabs(k_new) * h2 < 0.05) { s = s_new; k1 = k_new; done = 1; }
+            }
+        }
+        if (!done) s = sgc / sgg;
+        for (long i = 0; i < k; i++) unit_of(L, img[i], s, k1, L->w + 3 * i);
+        wahba(L->w, L->v, (int)k, NULL, C);
+    }
+    *s_io = s;
+    *k1_io = k1;
+}
+
+/* p_false of the final match (_Search.p_false) */
+static double lis_p_false(const Lis *L, const long *img, const double *d2, long k, const long *img4,
+                          long n_in, double s)
+{
+    long k_all[N_GATES] = {0}, k_other[N_GATES] = {0};
+    for (long i = 0; i < k; i++) {
+        int in_pat = img[i] == img4[0] || img[i] == img4[1] || img[i] == img4[2] || img[i] == img4[3];
+        for (int g = 0; g < N_GATES; g++) {
+            double gg = L->gate_fine * GATE_FRACTIONS[g];
+            if (d2[i] <= gg * gg) { k_all[g]++; if (!in_pat) k_other[g]++; }
+        }
+    }
+    long n = L->n;
+    double p1[N_GATES], fb[N_GATES], fa[N_GATES];
+    long nb[N_GATES], na[N_GATES], ka[N_GATES];
+    double looked = (double)(L->n_patterns > 1 ? L->n_patterns : 1) * (double)L->db_n_patterns;
+    for (int g = 0; g < N_GATES; g++) {
+        double gg = L->gate_fine * GATE_FRACTIONS[g];
+        p1[g] = (double)n_in * M_PI * gg * gg / (L->area0 * s * s);
+        fb[g] = (double)L->n_verified; nb[g] = n - 4;
+        fa[g] = looked; na[g] = n - 2; ka[g] = k_all[g] - 2;
+    }
+    double stop = 1e-3 * L->p_false_max / (2 * N_GATES);
+    double p_b = min_chance(fb, nb, k_other, p1, stop);
+    if (p_b <= stop) return 2.0 * N_GATES * p_b;
+    double p_a = min_chance(fa, na, ka, p1, stop);
+    double p = 2.0 * N_GATES * (p_a < p_b ? p_a : p_b);
+    return p < 1.0 ? p : 1.0;
+}
+
+/* _Search.verify: 1 accepted (result in L), 0 rejected, -1 out of memory */
+static int lis_verify(Lis *L, const Db *db, const long *img4, const long *cat4, double scale)
+{
+    double s = L->fit ? scale : 1.0, k1 = 0.0, C[9], box[4];
+    double w4[12], v4[12];
+    for (int a = 0; a < 4; a++) {
+        unit_of(L, img4[a], s, 0.0, w4 + 3 * a);
+        memcpy(v4 + 3 * a, db->u64 + 3 * cat4[a], 3 * sizeof(double));
+    }
+    wahba(w4, v4, 4, NULL, C);
+    double lim = (2.0 * L->e_edge) * (2.0 * L->e_edge), dmax = 0.0;
+    for (int a = 0; a < 4; a++) {
+        double d = 0.0;
+        for (int r = 0; r < 3; r++) {
+            double x = C[3 * r] * w4[3 * a] + C[3 * r + 1] * w4[3 * a + 1] + C[3 * r + 2] * w4[3 * a + 2]
+                       - v4[3 * a + r];
+            d += x * x;
+        }
+        if (d > dmax) dmax = d;
+    }
+    if (dmax > lim) return 0;                              /* mirror image or wrong pairing */
+    double largest2 = 0.0;
+    for (int a = 0; a < 4; a++)
+        for (int b = 0; b < 4; b++) {
+            double dy = L->t[2 * img4[a]] - L->t[2 * img4[b]];
+            double dz = L->t[2 * img4[a] + 1] - L->t[2 * img4[b] + 1];
+            double d = dy * dy + dz * dz;
+            if (d > largest2) largest2 = d;
+        }
+    double largest = sqrt(largest2);
+    double gate = 2.0 * L->error_rad * (1.0 + 2.0 * L->half_diag / (largest > 1e-12 ? largest : 1e-12));
+    if (L->fit_radial) {
+        double g2 = 0.01 * (L->bounds[3] - L->bounds[2]);
+        if (g2 > gate) gate = g2;
+    }
+    lis_box(L, s, box);
+    if (predict(db, C, box, gate, &L->pred) < 0) return -1;
+    for (long i = 0; i < L->n; i++) { L->ty[i] = L->t[2 * i] * s; L->tz[i] = L->t[2 * i + 1] * s; }
+    long m = associate(L->ty, L->tz, L->n, &L->pred, gate, L->img, L->jj, L->d2, L->pred.best,
+                       L->pred.ord, L->pred.sty, NULL, NULL, NULL);
+    if (m < 4) return 0;
+    for (long i = 0; i < m; i++) L->cat[i] = L->pred.rows[L->jj[i]];
+    int radial = L->fit && L->fit_radial;
+    refine(L, db, L->img, L->cat, m, &s, &k1, L->fit, radial, C);
+    long m2 = 0;
+    for (int attempt = 0; attempt < 4; attempt++) {
+        lis_box(L, s, box);
+        reproject(db, C, box, &L->pred);
+        t_true_all(L, s, k1, L->ty, L->tz);
+        long n_lost = 0;
+        m2 = associate(L->ty, L->tz, L->n, &L->pred, L->gate_fine, L->img2, L->jj2, L->d2b,
+                       L->pred.best, L->pred.ord, L->pred.sty, L->lost_r, L->lost_j, &n_lost);
+        if (n_lost) {
+            /* two stars within the fine gate of one catalog star: neither is matched (as
+             * in tracking; a blend or a false star on a true one) */
+            long o = 0;
+            for (long i = 0; i < m2; i++) {
+                int drop = 0;
+                for (long q = 0; q < n_lost && !drop; q++) drop = L->jj2[i] == L->lost_j[q];
+                if (!drop) { L->img2[o] = L->img2[i]; L->jj2[o] = L->jj2[i]; L->d2b[o] = L->d2b[i]; o++; }
+            }
+            m2 = o;
+        }
+        if (m2 < L->min_matches) return 0;
+        for (long i = 0; i < m2; i++) L->cat2[i] = L->pred.rows[L->jj2[i]];
+        int settled = m2 == m;
+        for (long i = 0; settled && i < m2; i++)
+            settled = L->img2[i] == L->img[i] && L->cat2[i] == L->cat[i];
+        m = m2;
+        memcpy(L->img, L->img2, m * sizeof(long));
+        memcpy(L->cat, L->cat2, m * sizeof(long));
+        if (settled || attempt == 3) break;
+        refine(L, db, L->img, L->cat, m, &s, &k1, L->fit, radial, C);
+    }
+    double p = lis_p_false(L, L->img, L->d2b, m, img4, L->pred.n_in, s);
+    if (p > L->p_false_max) return 0;
+    memcpy(L->C, C, sizeof C);
+    L->s = s; L->k1 = k1; L->p_false = p; L->n_match = m;
+    double ss = 0.0;
+    for (long i = 0; i < m; i++) {
+        double w[3];
+        unit_of(L, L->img[i], s, k1, w);
+        const double *v = db->u64 + 3 * L->cat[i];
+        for (int r = 0; r < 3; r++) {
+            double x = C[3 * r] * w[0] + C[3 * r + 1] * w[1] + C[3 * r + 2] * w[2] - v[r];
+            ss += x * x;
+        }
+    }
+    L->rms = sqrt(ss / m) * RAD2ASEC;
+    return 1;
+}
+
+static int cand_push(Cand **c, long *n, long *cap, const Cand *x)
+{
+    if (*n >= *cap) {
+        long nc = *cap ? 2 * *cap : 256;
+        Cand *p = realloc(*c, nc * sizeof(Cand));
+        if (!p) return -1;
+        *c = p;
+        *cap = nc;
+    }
+    (*c)[(*n)++] = *x;
+    return 0;
+}
+
+/* candidates of one image pattern (edges e6 in canonical order) appended to *cands */
+static int pattern_candidates(Lis *L, const Db *db, long owner, const double *e6, Cand **cands,
+                              long *n_cand, long *cap, long *order)
+{
+    double srt[6];
+    memcpy(srt, e6, sizeof srt);
+    sort6(srt);
+    double largest = srt[5];
+    double ratio[5], tol[5];
+    long lo[5], span[5];
+    long bins = db->bins;
+    for (int q = 0; q < 5; q++) {
+        ratio[q] = srt[q] / largest;
+        tol[q] = L->e_edge * (1.0 + ratio[q]) / largest + L->model_tol;
+        long a = (long)((ratio[q] - tol[q]) * bins), b = (long)((ratio[q] + tol[q]) * bins);
+        if (a < 0) a = 0;
+        if (a > bins - 1) a = bins - 1;
+        if (b < 0) b = 0;
+        if (b > bins - 1) b = bins - 1;
+        lo[q] = a;
+        span[q] = b - a + 1;
+        if (span[q] > 3) {
+            long c = (long)(ratio[q] * bins) - 1;
+            if (c < 0) c = 0;
+            if (c > bins - 3) c = bins - 3;
+            lo[q] = c;
+            span[q] = 3;
+        }
+    }
+    uint64_t mask = (db->key_bits >= 64) ? ~(uint64_t)0 : (((uint64_t)1 << db->key_bits) - 1);
+    uint64_t lo_mask = ((uint64_t)1 << db->lo_bits) - 1;
+    /* The look-up is memory bound (random reads in the key index and the star table):
+     * the addresses are computed first and prefetched together, then used in the same
+     * order as the plain loop would (the candidates and their order do not change). */
+    uint64_t his[243];
+    uint16_t los[243];
+    int n_probe = 0;
+    long o[5];
+    for (o[0] = 0; o[0] < span[0]; o[0]++)
+    for (o[1] = 0; o[1] < span[1]; o[1]++)
+    for (o[2] = 0; o[2] < span[2]; o[2]++)
+    for (o[3] = 0; o[3] < span[3]; o[3]++)
+    for (o[4] = 0; o[4] < span[4]; o[4]++) {
+        int64_t key = 0, wgt = 1;
+        for (int q = 0; q < 5; q++) { key += (lo[q] + o[q]) * wgt; wgt *= bins; }
+        uint64_t h = ((uint64_t)key * (uint64_t)331804481) & mask;
+        his[n_probe] = h >> db->lo_bits;
+        los[n_probe] = (uint16_t)(h & lo_mask);
+        __builtin_prefetch(db->key_hi_start + his[n_probe]);
+        n_probe++;
+    }
+    for (int i = 0; i < n_probe; i++) __builtin_prefetch(db->key_lo + db->key_hi_start[his[i]]);
+    long hits[512];
+    int n_hit = 0, more = 0;
+    for (int i = 0; i < n_probe && !more; i++) {
+        for (long row = db->key_hi_start[his[i]]; row < db->key_hi_start[his[i] + 1]; row++) {
+            if (db->key_lo[row] != los[i]) continue;
+            if (n_hit == 512) { more = 1; break; }
+            hits[n_hit++] = row;
+            __builtin_prefetch(db->pstars + 4 * row);
+        }
+    }
+    if (more) n_hit = 0;                /* (never seen) too many: the plain loop below */
+    for (int i = 0; i < n_hit; i++) {
+        const uint32_t *ps = db->pstars + 4 * hits[i];
+        for (int a = 0; a < 4; a++) __builtin_prefetch(db->u32 + 3 * ps[a]);
+    }
+    for (int i = 0; i < (more ? n_probe : n_hit); i++) {
+      long row_a = more ? db->key_hi_start[his[i]] : hits[i];
+      long row_b = more ? db->key_hi_start[his[i] + 1] : hits[i] + 1;
+      for (long row = row_a; row < row_b; row++) {
+            if (more && db->key_lo[row] != los[i]) continue;
+            const uint32_t *ps = db->pstars + 4 * row;
+            /* the largest edge first (one acos): most chance hits fail the size test */
+            double dots[6], dmin = INFINITY;
+            int emin = 0;
+            for (int e = 0; e < 6; e++) {
+                const float *a = db->u32 + 3 * ps[PAIR_A[e]], *b = db->u32 + 3 * ps[PAIR_B[e]];
+                dots[e] = (double)a[0] * (double)b[0] + (double)a[1] * (double)b[1]
+                          + (double)a[2] * (double)b[2];
+                if (clip1(dots[e]) < dmin) { dmin = clip1(dots[e]); emin = e; }
+            }
+            double clargest = acos(dmin);
+            double scale = clargest / largest;
+            if (!(fabs(scale - 1.0) <= L->ftol * 1.001 + 2.0 * L->e_edge / largest)) continue;
+            double ce[6];
+            for (int e = 0; e < 6; e++) ce[e] = e == emin ? clargest : acos(clip1(dots[e]));
+            double cs[6];
+            memcpy(cs, ce, sizeof cs);
+            sort6(cs);
+            int good = 1;
+            for (int q = 0; q < 5 && good; q++)
+                good = fabs(cs[q] / clargest - ratio[q]) <= tol[q];
+            if (!good) continue;
+            double best = INFINITY;
+            int bp = 0;
+            for (int p = 0; p < 24; p++) {
+                double err = 0.0;
+                for (int e = 0; e < 6; e++) {
+                    double d = ce[PERM_EDGES[p][e]] - e6[e] * scale;
+                    err += d * d;
+                }
+                if (err < best) { best = err; bp = p; }
+            }
+            Cand c;
+            c.owner = owner; c.order = (*order)++; c.err = best; c.scale = scale;
+            for (int a = 0; a < 4; a++) c.cat[a] = ps[PERM[bp][a]];
+            if (cand_push(cands, n_cand, cap, &c) < 0) return -1;
+      }
+    }
+    return 0;
+}
+
+/* the search; returns 1 solved, 0 exhausted, 2 stopped (time / candidates), -1 no memory */
+static int lis_run(Lis *L, const Db *db, long k, const int64_t *combos, const int64_t *ends, long n_ends)
+{
+    double ang[32 * 32];
+    long have = 0;                      /* angles among the first `have` stars are known */
+    Cand *cands = NULL;
+    long cap = 0, start = 0;
+    int status = 0;
+    for (long bi = 0; bi < n_ends && status == 0; bi++) {
+        long end = ends[bi];
+        if (end <= start) continue;
+        long n_cand = 0, order = 0;
+        long need = combos[4 * (end - 1) + 3] + 1;     /* rows are sorted: the last star */
+        for (long b = have; b < need; b++)
+            for (long a = 0; a < b; a++) {
+                const double *x = L->u0 + 3 * a, *y = L->u0 + 3 * b;
+                ang[a * k + b] = acos(clip1(x[0] * y[0] + x[1] * y[1] + x[2] * y[2]));
+            }
+        if (need > have) have = need;
+        for (long p = start; p < end; p++) {
+            const int64_t *cb = combos + 4 * p;
+            double e6[6], lg = 0.0;
+            for (int e = 0; e < 6; e++) {
+                e6[e] = ang[cb[PAIR_A[e]] * k + cb[PAIR_B[e]]];
+                if (e6[e] > lg) lg = e6[e];
+            }
+            if (!(lg <= L->max_edge && lg >= L->min_edge)) continue;
+            L->n_patterns++;
+            if (pattern_candidates(L, db, p - start, e6, &cands, &n_cand, &cap, &order) < 0) {
+                status = -1;
+                break;
+            }
+        }
+        if (status) break;
+        if (n_cand > 1) qsort(cands, n_cand, sizeof(Cand), cand_cmp);
+        for (long i = 0; i < n_cand; i++) {
+            L->n_verified++;
+            const int64_t *cb = combos + 4 * (start + cands[i].owner);
+            long img4[4] = {cb[0], cb[1], cb[2], cb[3]};
+            int r = lis_verify(L, db, img4, cands[i].cat, cands[i].scale);
+            if (r != 0) { status = r; break; }
+            if (now_s() - L->t_start > L->max_time_s || L->n_verified >= L->max_candidates) {
+                status = 2;
+                break;
+            }
+        }
+        if (status) break;
+        if (now_s() - L->t_start > L->max_time_s || L->n_verified >= L->max_candidates) {
+            status = 2;
+            break;
+        }
+        start = end;
+    }
+    free(cands);
+    return status;
+}
+
+/* ---------------------------------------------------------------------------------
+ * Python entry points
+ * ------------------------------------------------------------------------------- */
+
+/* star_index / hip outputs: -1, then out_star[usable[img]] = cat, out_hip[..] = hip[cat]
+ * (usable empty: img itself); 0 when an index is out of range */
+static int scatter_rows(const int64_t *img, const int64_t *cat, long k, const Py_buffer *usable,
+                        const Py_buffer *hip, Py_buffer *out_star, Py_buffer *out_hip)
+{
+    const int64_t *u = usable->buf;
+    const int32_t *h = hip->buf;
+    int64_t *star = out_star->buf, *oh = out_hip->buf;
+    long n = (long)(out_star->len / sizeof(int64_t)), n_use = (long)(usable->len / sizeof(int64_t));
+    long n_hip = (long)(hip->len / sizeof(int32_t));
+    if ((long)(out_hip->len / sizeof(int64_t)) != n) return 0;
+    for (long i = 0; i < n; i++) { star[i] = -1; oh[i] = -1; }
+    for (long i = 0; i < k; i++) {
+        long r = n_use ? (img[i] >= 0 && img[i] < n_use ? (long)u[img[i]] : -1) : (long)img[i];
+        if (r < 0 || r >= n || cat[i] < 0 || cat[i] >= n_hip) return 0;
+        star[r] = cat[i];
+        oh[r] = h[cat[i]];
+    }
+    return 1;
+}
+
+#define NBUF 12
+
+static void release_all(Py_buffer *b, int n)
+{
+    for (int i = 0; i < n; i++)
+        if (b[i].obj) PyBuffer_Release(&b[i]);
+}
+
+/* lis_solve(t, u0, combos, ends, u64, u32, pstars, key_lo, key_hi_start, cell_start,
+ *           cell_index, cell_u, iparams, dparams, out_C, out_img, out_cat)
+ * iparams (int64): k, grid_n, key_bits, lo_bits, bins, db_n_patterns, min_matches,
+ *                  max_candidates, fit, fit_radial, largest cell
+ * dparams (float64): e_edge, max_edge, min_edge, model_tol, ftol, error_rad, half_diag,
+ *                    gate_fine, area0, p_false_max, max_time_s, bounds[4]
+ * returns (status, n_match, n_verified, n_patterns, s, k1, p_false, rms_arcsec) */
+static PyObject *py_lis_solve(PyObject *self, PyObject *args)
+{
+    Py_buffer b[NBUF + 2], ip, dp, oc, oi, ocat;
+    memset(b, 0, sizeof b);
+    memset(&ip, 0, sizeof ip); memset(&dp, 0, sizeof dp);
+    memset(&oc, 0, sizeof oc); memset(&oi, 0, sizeof oi); memset(&ocat, 0, sizeof ocat);
+    Py_buffer bus, bh, ostar, ohip;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*y*y*y*y*y*w*w*w*y*y*w*w*", &b[0], &b[1], &b[2],
+                          &b[3], &b[4], &b[5], &b[6], &b[7], &b[8], &b[9], &b[10], &b[11], &ip, &dp,
+                          &oc, &oi, &ocat, &bus, &bh, &ostar, &ohip))
+        return NULL;
+    const int64_t *I = ip.buf;
+    const double *D = dp.buf;
+    Lis L;
+    memset(&L, 0, sizeof L);
+    L.t = b[0].buf;
+    L.u0 = b[1].buf;
+    L.n = (long)(b[0].len / (2 * sizeof(double)));
+    long k = (long)I[0];
+    Db db;
+    db.u64 = b[4].buf; db.u32 = b[5].buf; db.pstars = b[6].buf; db.key_lo = b[7].buf;
+    db.key_hi_start = b[8].buf; db.cell_start = b[9].buf; db.cell_index = b[10].buf;
+    db.cell_u = b[11].buf;
+    db.grid_n = (long)I[1]; db.key_bits = (long)I[2]; db.lo_bits = (long)I[3]; db.bins = (long)I[4];
+    db.n_patterns_db = (long)I[5];
+    L.db_n_patterns = db.n_patterns_db;
+    L.min_matches = (long)I[6]; L.max_candidates = (long)I[7]; L.fit = (int)I[8];
+    L.fit_radial = (int)I[9];
+    L.e_edge = D[0]; L.max_edge = D[1]; L.min_edge = D[2]; L.model_tol = D[3]; L.ftol = D[4];
+    L.error_rad = D[5]; L.half_diag = D[6]; L.gate_fine = D[7]; L.area0 = D[8];
+    L.p_false_max = D[9]; L.max_time_s = D[10];
+    for (int q = 0; q < 4; q++) L.bounds[q] = D[11 + q];
+    int status = -1;
+    long n = L.n > 0 ? L.n : 1;
+    L.ty = malloc(n * sizeof(double)); L.tz = malloc(n * sizeof(double));
+    L.w = malloc(3 * n * sizeof(double)); L.v = malloc(3 * n * sizeof(double));
+    L.d2 = malloc(n * sizeof(double)); L.d2b = malloc(n * sizeof(double));
+    L.img = malloc(n * sizeof(long)); L.jj = malloc(n * sizeof(long));
+    L.img2 = malloc(n * sizeof(long)); L.jj2 = malloc(n * sizeof(long));
+    L.cat = malloc(n * sizeof(long)); L.cat2 = malloc(n * sizeof(long));
+    L.lost_r = malloc(n * sizeof(long)); L.lost_j = malloc(n * sizeof(long));
+    if (L.ty && L.tz && L.w && L.v && L.d2 && L.d2b && L.img && L.jj && L.img2 && L.jj2 && L.cat
+        && L.cat2 && L.lost_r && L.lost_j && k <= 32) {
+        Py_BEGIN_ALLOW_THREADS
+        L.t_start = now_s();
+        status = lis_run(&L, &db, k, b[2].buf, b[3].buf, (long)(b[3].len / sizeof(int64_t)));
+        Py_END_ALLOW_THREADS
+    }
+    int scattered = 1;
+    if (status == 1) {
+        memcpy(oc.buf, L.C, 9 * sizeof(double));
+        int64_t *oimg = oi.buf, *ocat_ = ocat.buf;
+        for (long i = 0; i < L.n_match; i++) { oimg[i] = L.img[i]; ocat_[i] = L.cat[i]; }
+        scattered = scatter_rows(oimg, ocat_, L.n_match, &bus, &bh, &ostar, &ohip);
+    }
+    PyBuffer_Release(&bus); PyBuffer_Release(&bh); PyBuffer_Release(&ostar); PyBuffer_Release(&ohip);
+    free(L.ty); free(L.tz); free(L.w); free(L.v); free(L.d2); free(L.d2b); free(L.img);
+    free(L.jj); free(L.img2); free(L.jj2); free(L.cat); free(L.cat2); free(L.lost_r); free(L.lost_j);
+    pred_free(&L.pred);
+    release_all(b, NBUF);
+    PyBuffer_Release(&ip); PyBuffer_Release(&dp); PyBuffer_Release(&oc); PyBuffer_Release(&oi);
+    PyBuffer_Release(&ocat);
+    if (status < 0) return PyErr_NoMemory();
+    if (!scattered) {
+        PyErr_SetString(PyExc_IndexError, "lis_solve: matched row out of range");
+        return NULL;
+    }
+    return Py_BuildValue("illldddd", status, L.n_match, L.n_verified, L.n_patterns, L.s, L.k1,
+                         L.p_false, L.rms);
+}
+
+/* ---------------------------------------------------------------------------------
+ * Tracking (_tracking.py)
+ * ------------------------------------------------------------------------------- */
+
+#define WIDE_STARS 20
+#define MAX_FITS 6
+#define MAX_TRIMS 2
+#define TRIM_FRACTION 0.2
+
+typedef struct {
+    long n;                     /* measured stars */
+    const double *t;            /* (n, 2) at the focal scale */
+    const double *w;            /* (n, 3) unit vectors */
+    const double *my, *mz;      /* (n,) split t */
+    long m;                     /* predicted stars */
+    const long *rows;
+    const double *u;            /* (m, 3) packed catalog vectors */
+    const double *py, *pz;      /* prior projections */
+    double gate, gate_prior, gate_shift, area, limit;
+    long min_matches, n_trials;
+    /* scratch */
+    double *sy, *sz, *qy, *qz;  /* (m,) shifted / fitted projections */
+    double *wb, *vb;            /* (n, 3) */
+    long *best_k, *lost_r, *lost_j, *tmp_i, *tmp_j, *ord;
+    double *tmp_d, *sty;
+    Pred pr;                    /* views for associate() */
+} Scene;
+
+static void residuals2(const Scene *S, const long *img, const long *j, long k, const double *C, double *d2)
+{
+    for (long i = 0; i < k; i++) {
+        const double *v = S->u + 3 * j[i];
+        double w0 = v[0] * C[0] + v[1] * C[3] + v[2] * C[6];
+        double w1 = v[0] * C[1] + v[1] * C[4] + v[2] * C[7];
+        double w2 = v[0] * C[2] + v[1] * C[5] + v[2] * C[8];
+        double dy = S->t[2 * img[i]] - w1 / w0, dz = S->t[2 * img[i] + 1] - w2 / w0;
+        d2[i] = dy * dy + dz * dz;
+    }
+}
+
+static void fit(Scene *S, const long *img, const long *j, long k, const double *C_near, double *C)
+{
+    for (long i = 0; i < k; i++) {
+        memcpy(S->wb + 3 * i, S->w + 3 * img[i], 3 * sizeof(double));
+        memcpy(S->vb + 3 * i, S->u + 3 * j[i], 3 * sizeof(double));
+    }
+    wahba(S->wb, S->vb, (int)k, C_near, C);
+}
+
+static long pair(Scene *S, const double *py, const double *pz, double gate, long *img, long *j,
+                 double *d2, long *n_lost)
+{
+    S->pr.m = S->m;
+    S->pr.ty = (double *)py;
+    S->pr.tz = (double *)pz;
+    return associate(S->my, S->mz, S->n, &S->pr, gate, img, j, d2, S->best_k, S->ord, S->sty,
+                     S->lost_r, S->lost_j, n_lost);
+}
+
+static double dmax(const double *d, long k)
+{
+    double m = -INFINITY;
+    for (long i = 0; i < k; i++) if (d[i] > m) m = d[i];
+    return m;
+}
+
+static long without(long *img, long *j, double *d2, long k, const long *bad, long n_bad)
+{
+    long out = 0;
+    for (long i = 0; i < k; i++) {
+        int drop = 0;
+        for (long b = 0; b < n_bad && !drop; b++) drop = j[i] == bad[b];
+        if (!drop) { img[out] = img[i]; j[out] = j[i]; d2[out] = d2[i]; out++; }
+    }
+    return out;
+}
+
+/* _Scene.settle; img/j/d2 in-out, returns the number of pairs, C out */
+static long settle(Scene *S, long *img, long *j, double *d2, long k, long n_lost, const double *C_near,
+                   double *C)
+{
+    double g2 = S->gate * S->gate;
+    fit(S, img, j, k, C_near, C);
+    residuals2(S, img, j, k, C, d2);
+    double g = S->gate_shift;
+    if (dmax(d2, k) > g2) {                                 /* _trim */
+        for (int it = 0; it < MAX_TRIMS; it++) {
+            long keep = 0;
+            for (long i = 0; i < k; i++) keep += d2[i] <= g2;
+            if (keep == k || (double)(k - keep) > TRIM_FRACTION * (double)k) break;
+            long o = 0;
+            for (long i = 0; i < k; i++)
+                if (d2[i] <= g2) { img[o] = img[i]; j[o] = j[i]; d2[o] = d2[i]; o++; }
+            k = o;
+            if (k < S->min_matches) return k;
+            double Cn[9];
+            memcpy(Cn, C, sizeof Cn);
+            fit(S, img, j, k, Cn, C);
+            residuals2(S, img, j, k, C, d2);
+        }
+        if (k < S->min_matches) return k;
+    }
+    if (dmax(d2, k) <= g2) {
+        /* _ambiguous: predictions a losing star is also within the fine gate of */
+        long bad[64], n_bad = 0;
+        for (long L = 0; L < n_lost && n_bad < 64; L++) {
+            long jp = S->lost_j[L];
+            int taken = 0;
+            for (long i = 0; i < k && !taken; i++) taken = j[i] == jp;
+            if (!taken) continue;
+            long r = S->lost_r[L];
+            double dd;
+            residuals2(S, &r, &jp, 1, C, &dd);
+            if (dd <= g2) bad[n_bad++] = jp;
+        }
+        if (n_bad == 0) return k;
+        k = without(img, j, d2, k, bad, n_bad);
+        if (k < S->min_matches) return k;
+        double Cn[9];
+        memcpy(Cn, C, sizeof Cn);
+        fit(S, img, j, k, Cn, C);
+        g = S->gate;
+    }
+    for (int it = 0; it < MAX_FITS; it++) {
+        g = 0.25 * g > S->gate ? 0.25 * g : S->gate;
+        for (long q = 0; q < S->m; q++) {
+            const double *u = S->u + 3 * q;
+            double w0 = u[0] * C[0] + u[1] * C[3] + u[2] * C[6];
+            double w1 = u[0] * C[1] + u[1] * C[4] + u[2] * C[7];
+            double w2 = u[0] * C[2] + u[1] * C[5] + u[2] * C[8];
+            S->qy[q] = w1 / w0;
+            S->qz[q] = w2 / w0;
+        }
+        long nl = 0;
+        long k2 = pair(S, S->qy, S->qz, g, S->tmp_i, S->tmp_j, S->tmp_d, &nl);
+        if (g == S->gate && nl) {
+            long bad[64], n_bad = 0;
+            for (long L = 0; L < nl && n_bad < 64; L++) bad[n_bad++] = S->lost_j[L];
+            k2 = without(S->tmp_i, S->tmp_j, S->tmp_d, k2, bad, n_bad);
+        }
+        int settled = g == S->gate && k2 == k;
+        for (long i = 0; settled && i < k2; i++) settled = S->tmp_i[i] == img[i] && S->tmp_j[i] == j[i];
+        memcpy(img, S->tmp_i, k2 * sizeof(long));
+        memcpy(j, S->tmp_j, k2 * sizeof(long));
+        memcpy(d2, S->tmp_d, k2 * sizeof(double));
+        k = k2;
+        if (settled || k < S->min_matches) break;
+        double Cn[9];
+        memcpy(Cn, C, sizeof Cn);
+        fit(S, img, j, k, Cn, C);
+    }
+    return k;
+}
+
+/* _Scene.match: 0 ok (k, n_in set), else a reason code with *k the count */
+static int scene_match(Scene *S, const double *C_prior, double shy, double shz, const double *box,
+                       long *img, long *j, double *d2, long *k_out, long *n_in, double *C)
+{
+    for (long q = 0; q < S->m; q++) { S->sy[q] = S->py[q] + shy; S->sz[q] = S->pz[q] + shz; }
+    long n_lost = 0;
+    long k = pair(S, S->sy, S->sz, S->gate_shift, img, j, d2, &n_lost);
+    *k_out = k;
+    if (k < S->min_matches) return 3;
+    k = settle(S, img, j, d2, k, n_lost, C_prior, C);
+    *k_out = k;
+    if (k < S->min_matches) return 4;
+    long c = 0;
+    for (long q = 0; q < S->m; q++)
+        c += fabs(S->sy[q] - box[0]) <= box[2] && fabs(S->sz[q] - box[1]) <= box[3];
+    *n_in = c;
+    return 0;
+}
+
+static double tail_bound(long n, long k, double p)
+{
+    if (k <= 0) return 1.0;
+    if (k > n || p <= 0.0) return 0.0;
+    double log_c = lgamma(n + 1.0) - lgamma(k + 1.0) - lgamma(n - k + 1.0);
+    double x = log_c + k * log(p < 1.0 ? p : 1.0);
+    return exp(x < 0.0 ? x : 0.0);
+}
+
+/* _tracking._p_false */
+static double track_p_false(const Scene *S, const double *d2, long k, long n_in)
+{
+    double stop = 1e-3 * S->limit / N_GATES;
+    double r = S->gate_prior / S->gate;
+    double look = r * r * r > 1.0 ? r * r * r : 1.0;
+    double p1 = n_in * M_PI * S->gate * S->gate / S->area;
+    double first = look * tail_bound(S->n_trials, k - 2, p1);
+    if (first > stop) first = look * binom_tail(S->n_trials, k - 2, p1);
+    if (first <= stop) { double p = N_GATES * first; return p < 1.0 ? p : 1.0; }
+    double f[N_GATES], p1s[N_GATES];
+    long nt[N_GATES], kk[N_GATES];
+    for (int g = 0; g < N_GATES; g++) {
+        double gg = S->gate * GATE_FRACTIONS[g], rr = S->gate_prior / gg;
+        p1s[g] = n_in * M_PI * gg * gg / S->area;
+        f[g] = rr * rr * rr > 1.0 ? rr * rr * rr : 1.0;
+        nt[g] = S->n_trials;
+        long c = 0;
+        for (long i = 0; i < k; i++) c += d2[i] <= gg * gg;
+        kk[g] = c - 2;
+    }
+    double p = N_GATES * min_chance(f, nt, kk, p1s, stop);
+    return p < 1.0 ? p : 1.0;
+}
+
+static int cmp_double(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return x < y ? -1 : (x > y);
+}
+
+static double median_of(double *v, long n)
+{
+    qsort(v, n, sizeof(double), cmp_double);
+    long k = n / 2;
+    return n % 2 ? v[k] : 0.5 * (v[k - 1] + v[k]);
+}
+
+typedef struct {
+    int code;                   /* 0 solved, else a reason (see _tracking.py) */
+    long count;
+    double p;
+    int voted;
+    double C[9];
+    long k;
+    double p_false;
+} TrackOut;
+
+static int track_run(Scene *S, const double *C_prior, const double *box, long *img, long *j,
+                     double *d2, TrackOut *out)
+{
+    long nw = S->n < WIDE_STARS ? S->n : WIDE_STARS;
+    int shift_ok = 0;
+    double shy = 0, shz = 0;
+    int code = 0;
+    long count = 0;
+    double pval = 0.0;
+    /* median shift */
+    if (S->m == 0) code = 1;
+    else {
+        double *oy = S->tmp_d, *oz = S->qy;      /* scratch: n >= nw, m >= 1 */
+        long c = 0;
+        double g2 = S->gate_prior * S->gate_prior;
+        double *dz_buf = malloc((nw + 1) * sizeof(double));
+        if (!dz_buf) return -1;
+        for (long i = 0; i < nw; i++) {
+            double best = INFINITY;
+            long bj = -1;
+            for (long q = 0; q < S->m; q++) {
+                double dy = S->my[i] - S->py[q], dz = S->mz[i] - S->pz[q];
+                double d = dy * dy + dz * dz;
+                if (d < best) { best = d; bj = q; }
+            }
+            if (bj >= 0 && best <= g2) {
+                oy[c] = S->my[i] - S->py[bj];
+                dz_buf[c] = S->mz[i] - S->pz[bj];
+                c++;
+            }
+        }
+        if (c < S->min_matches) { code = 2; count = c; }
+        else {
+            shy = median_of(oy, c);
+            shz = median_of(dz_buf, c);
+            shift_ok = 1;
+        }
+        (void)oz;
+        free(dz_buf);
+    }
+    long n_in = 0, k = 0;
+    if (shift_ok) {
+        code = scene_match(S, C_prior, shy, shz, box, img, j, d2, &k, &n_in, out->C);
+        count = k;
+        if (code == 0) {
+            double p = track_p_false(S, d2, k, n_in);
+            if (p <= S->limit) { out->code = 0; out->k = k; out->p_false = p; return 0; }
+            code = 5; count = k; pval = p;
+        }
+    }
+    /* vote */
+    long nmax = nw * S->m;
+    double *cy = malloc((nmax + 1) * sizeof(double)), *cz = malloc((nmax + 1) * sizeof(double));
+    if (!cy || !cz) { free(cy); free(cz); return -1; }
+    long K = 0;
+    double gp2 = S->gate_prior * S->gate_prior;
+    for (long i = 0; i < nw; i++)
+        for (long q = 0; q < S->m; q++) {
+            double dy = S->my[i] - S->py[q], dz = S->mz[i] - S->pz[q];
+            if (dy * dy + dz * dz <= gp2) { cy[K] = dy; cz[K] = dz; K++; }
+        }
+    int have_vote = 0;
+    double vy = 0, vz = 0;
+    if (K > 0) {
+        double r = 0.5 * S->gate_shift, r2 = r * r;
+        long best = -1, best_c = -1;
+        for (long a = 0; a < K; a++) {
+            long c = 0;
+            for (long b = 0; b < K; b++) {
+                double ddy = cy[a] - cy[b], ddz = cz[a] - cz[b];
+                c += ddy * ddy + ddz * ddz <= r2;
+            }
+            if (c > best_c) { best_c = c; best = a; }
+        }
+        double *sy = malloc((best_c + 1) * sizeof(double)), *sz = malloc((best_c + 1) * sizeof(double));
+        if (!sy || !sz) { free(sy); free(sz); free(cy); free(cz); return -1; }
+        long c = 0;
+        for (long b = 0; b < K; b++) {
+            double ddy = cy[best] - cy[b], ddz = cz[best] - cz[b];
+            if (ddy * ddy + ddz * ddz <= r2) { sy[c] = cy[b]; sz[c] = cz[b]; c++; }
+        }
+        vy = median_of(sy, c);
+        vz = median_of(sz, c);
+        free(sy); free(sz);
+        have_vote = 1;
+    }
+    free(cy); free(cz);
+    if (!have_vote || (shift_ok && hypot(vy - shy, vz - shz) <= 0.5 * S->gate_shift)) {
+        out->code = code; out->count = count; out->p = pval;
+        return 0;
+    }
+    out->voted = 1;
+    long k2 = 0, n_in2 = 0;
+    double C2[9];
+    int code2 = scene_match(S, C_prior, vy, vz, box, img, j, d2, &k2, &n_in2, C2);
+    if (code2) { out->code = code; out->count = count; out->p = pval; return 0; }
+    double p = 2.0 * track_p_false(S, d2, k2, n_in2);
+    if (p > S->limit) { out->code = 5; out->count = k2; out->p = p; return 0; }
+    memcpy(out->C, C2, sizeof C2);
+    out->code = 0; out->k = k2; out->p_false = p;
+    return 0;
+}
+
+/* track_solve(t, w, C_prior, cell_u, cell_start, cell_index, iparams, dparams, out_C,
+ *             out_img, out_cat)
+ * iparams (int64): grid_n, min_matches, n_trials
+ * dparams (float64): box[4] (cy, cz, hy, hz), gate, gate_prior, gate_shift, area, limit
+ * returns (code, count, p, voted, n_match, p_false, rms_arcsec) */
+static PyObject *py_track_solve(PyObject *self, PyObject *args)
+{
+    Py_buffer bt, bw, bc, bu, bcs, bci, ip, dp, oc, oi, ocat, bus, bh, ostar, ohip;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*w*w*w*y*y*w*w*", &bt, &bw, &bc, &bu, &bcs, &bci, &ip,
+                          &dp, &oc, &oi, &ocat, &bus, &bh, &ostar, &ohip))
+        return NULL;
+    const int64_t *I = ip.buf;
+    const double *D = dp.buf;
+    const double *C_prior = bc.buf;
+    const double *cell_u = bu.buf;
+    const int32_t *cell_start = bcs.buf;
+    const uint32_t *cell_index = bci.buf;
+    long grid_n = (long)I[0];
+    Scene S;
+    memset(&S, 0, sizeof S);
+    S.n = (long)(bt.len / (2 * sizeof(double)));
+    S.t = bt.buf;
+    S.w = bw.buf;
+    S.min_matches = (long)I[1];
+    S.n_trials = (long)I[2];
+    double box[4] = {D[0], D[1], D[2], D[3]};
+    S.gate = D[4]; S.gate_prior = D[5]; S.gate_shift = D[6]; S.area = D[7]; S.limit = D[8];
+    TrackOut out;
+    memset(&out, 0, sizeof out);
+    int rc = -1;
+    double rms = NAN;
+    double bore[3] = {C_prior[0], C_prior[3], C_prior[6]};
+    long c = cell_of_one(bore, grid_n);
+    long m_cell = cell_start[c + 1] - cell_start[c];
+    long n = S.n > 0 ? S.n : 1, mc = m_cell > 0 ? m_cell : 1;
+    double *my = malloc(n * sizeof(double)), *mz = malloc(n * sizeof(double));
+    long *rows = malloc(mc * sizeof(long));
+    double *u = malloc(3 * mc * sizeof(double)), *py = malloc(mc * sizeof(double)),
+           *pz = malloc(mc * sizeof(double));
+    S.sy = malloc(mc * sizeof(double)); S.sz = malloc(mc * sizeof(double));
+    S.qy = malloc(mc * sizeof(double)); S.qz = malloc(mc * sizeof(double));
+    S.wb = malloc(3 * n * sizeof(double)); S.vb = malloc(3 * n * sizeof(double));
+    S.best_k = malloc(mc * sizeof(long)); S.lost_r = malloc(n * sizeof(long));
+    S.ord = malloc(mc * sizeof(long)); S.sty = malloc(mc * sizeof(double));
+    S.lost_j = malloc(n * sizeof(long)); S.tmp_i = malloc(n * sizeof(long));
+    S.tmp_j = malloc(n * sizeof(long)); S.tmp_d = malloc(n * sizeof(double));
+    long *img = malloc(n * sizeof(long)), *j = malloc(n * sizeof(long));
+    double *d2 = malloc(n * sizeof(double));
+    if (my && mz && rows && u && py && pz && S.sy && S.sz && S.qy && S.qz && S.wb && S.vb && S.best_k
+        && S.ord && S.sty
+        && S.lost_r && S.lost_j && S.tmp_i && S.tmp_j && S.tmp_d && img && j && d2) {
+        Py_BEGIN_ALLOW_THREADS
+        for (long i = 0; i < S.n; i++) { my[i] = S.t[2 * i]; mz[i] = S.t[2 * i + 1]; }
+        S.my = my; S.mz = mz;
+        long m = 0;
+        double margin = S.gate_prior;
+        for (long q = cell_start[c]; q < cell_start[c + 1]; q++) {
+            long r = cell_index[q];
+            const double *uu = cell_u + 3 * q;
+            double w0 = uu[0] * C_prior[0] + uu[1] * C_prior[3] + uu[2] * C_prior[6];
+            double w1 = uu[0] * C_prior[1] + uu[1] * C_prior[4] + uu[2] * C_prior[7];
+            double w2 = uu[0] * C_prior[2] + uu[1] * C_prior[5] + uu[2] * C_prior[8];
+            double ty = w1 / w0, tz = w2 / w0;
+            if (fabs(ty - box[0]) <= box[2] + margin && fabs(tz - box[1]) <= box[3] + margin) {
+                rows[m] = r; memcpy(u + 3 * m, uu, 3 * sizeof(double)); py[m] = ty; pz[m] = tz; m++;
+            }
+        }
+        S.m = m; S.rows = rows; S.u = u; S.py = py; S.pz = pz;
+        rc = track_run(&S, C_prior, box, img, j, d2, &out);
+        if (rc == 0 && out.code == 0) {
+            double ss = 0.0;
+            for (long i = 0; i < out.k; i++) {
+                const double *w = S.w + 3 * img[i], *v = u + 3 * j[i];
+                for (int r = 0; r < 3; r++) {
+                    double x = out.C[3 * r] * w[0] + out.C[3 * r + 1] * w[1] + out.C[3 * r + 2] * w[2] - v[r];
+                    ss += x * x;
+                }
+            }
+            rms = sqrt(ss / out.k) * RAD2ASEC;
+        }
+        Py_END_ALLOW_THREADS
+    }
+    int scattered = 1;
+    if (rc == 0 && out.code == 0) {
+        memcpy(oc.buf, out.C, 9 * sizeof(double));
+        int64_t *oimg = oi.buf, *ocat_ = ocat.buf;
+        for (long i = 0; i < out.k; i++) { oimg[i] = img[i]; ocat_[i] = rows[j[i]]; }
+        scattered = scatter_rows(oimg, ocat_, out.k, &bus, &bh, &ostar, &ohip);
+    }
+    PyBuffer_Release(&bus); PyBuffer_Release(&bh); PyBuffer_Release(&ostar); PyBuffer_Release(&ohip);
+    free(my); free(mz); free(rows); free(u); free(py); free(pz); free(S.sy); free(S.sz); free(S.qy);
+    free(S.qz); free(S.wb); free(S.vb); free(S.best_k); free(S.lost_r); free(S.lost_j); free(S.tmp_i);
+    free(S.tmp_j); free(S.tmp_d); free(img); free(j); free(d2); free(S.ord); free(S.sty);
+    PyBuffer_Release(&bt); PyBuffer_Release(&bw); PyBuffer_Release(&bc); PyBuffer_Release(&bu);
+    PyBuffer_Release(&bcs); PyBuffer_Release(&bci); PyBuffer_Release(&ip); PyBuffer_Release(&dp);
+    PyBuffer_Release(&oc); PyBuffer_Release(&oi); PyBuffer_Release(&ocat);
+    if (rc < 0) return PyErr_NoMemory();
+    if (!scattered) {
+        PyErr_SetString(PyExc_IndexError, "track_solve: matched row out of range");
+        return NULL;
+    }
+    return Py_BuildValue("ildilddd", out.code, out.count, out.p, out.voted, out.k, out.p_false, rms,
+                         0.0);
+}
+
+/* wahba(w, v) -> C bytes (for tests: the compiled QUEST against the Python one) */
+static PyObject *py_wahba(PyObject *self, PyObject *args)
+{
+    Py_buffer bw, bv, oc;
+    if (!PyArg_ParseTuple(args, "y*y*w*", &bw, &bv, &oc)) return NULL;
+    long n = (long)(bw.len / (3 * sizeof(double)));
+    if (n >= 1) wahba(bw.buf, bv.buf, (int)n, NULL, oc.buf);
+    PyBuffer_Release(&bw); PyBuffer_Release(&bv); PyBuffer_Release(&oc);
+    Py_RETURN_NONE;
+}
+
+/* pinhole_unproject(xy, params[x0, y0, pixel_mm, f_mm], out_u, out_t) -> all finite
+ * (Camera.unproject without distortion, then t = u[1:] / u[0]: the same arithmetic) */
+static PyObject *py_pinhole_unproject(PyObject *self, PyObject *args)
+{
+    Py_buffer bx, bp, ou, ot;
+    if (!PyArg_ParseTuple(args, "y*y*w*w*", &bx, &bp, &ou, &ot)) return NULL;
+    const double *xy = bx.buf, *P = bp.buf;
+    double *u = ou.buf, *t = ot.buf;
+    long n = (long)(bx.len / (2 * sizeof(double)));
+    int finite = 1;
+    for (long i = 0; i < n; i++) {
+        double um = (xy[2 * i] - P[0]) * P[2], wm = (xy[2 * i + 1] - P[1]) * P[2];
+        double a = P[3], b = -wm, c = um;
+        double nn = sqrt(a * a + b * b + c * c);
+        a /= nn; b /= nn; c /= nn;
+        u[3 * i] = a; u[3 * i + 1] = b; u[3 * i + 2] = c;
+        t[2 * i] = b / a; t[2 * i + 1] = c / a;
+        if (!isfinite(t[2 * i]) || !isfinite(t[2 * i + 1])) finite = 0;
+    }
+    PyBuffer_Release(&bx); PyBuffer_Release(&bp); PyBuffer_Release(&ou); PyBuffer_Release(&ot);
+    return PyBool_FromLong(finite);
+}
+
+/* unit_rows(t, s, k1, out): StarField.unit(s, k1=k1) for every row */
+static PyObject *py_unit_rows(PyObject *self, PyObject *args)
+{
+    Py_buffer bt, ou;
+    double s, k1;
+    if (!PyArg_ParseTuple(args, "y*ddw*", &bt, &s, &k1, &ou)) return NULL;
+    const double *t = bt.buf;
+    double *u = ou.buf;
+    long n = (long)(bt.len / (2 * sizeof(double)));
+    for (long i = 0; i < n; i++) {
+        double ty = t[2 * i], tz = t[2 * i + 1], f = s;
+        if (k1 != 0.0) f = s * (1.0 + k1 * (ty * ty + tz * tz));
+        ty *= f; tz *= f;
+        double nn = sqrt(1.0 + ty * ty + tz * tz);
+        u[3 * i] = 1.0 / nn; u[3 * i + 1] = ty / nn; u[3 * i + 2] = tz / nn;
+    }
+    PyBuffer_Release(&bt); PyBuffer_Release(&ou);
+    Py_RETURN_NONE;
+}
+
+/* scatter(img, cat, usable, hip_db, out_star, out_hip): out_star[usable[img]] = cat,
+ * out_hip[...] = hip_db[cat], -1 elsewhere (usable empty: the identity) */
+static PyObject *py_scatter(PyObject *self, PyObject *args)
+{
+    Py_buffer bi, bc, bu, bh, os, oh;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*w*w*", &bi, &bc, &bu, &bh, &os, &oh)) return NULL;
+    const int64_t *img = bi.buf, *cat = bc.buf, *usable = bu.buf;
+    const int32_t *hip = bh.buf;
+    int64_t *star = os.buf, *ohip = oh.buf;
+    long k = (long)(bi.len / sizeof(int64_t)), n = (long)(os.len / sizeof(int64_t));
+    long n_use = (long)(bu.len / sizeof(int64_t)), n_hip = (long)(bh.len / sizeof(int32_t));
+    int ok = 1;
+    for (long i = 0; i < n; i++) { star[i] = -1; ohip[i] = -1; }
+    for (long i = 0; i < k && ok; i++) {
+        long r = n_use ? (img[i] >= 0 && img[i] < n_use ? (long)usable[img[i]] : -1) : (long)img[i];
+        if (r < 0 || r >= n || cat[i] < 0 || cat[i] >= n_hip) { ok = 0; break; }
+        star[r] = cat[i];
+        ohip[r] = hip[cat[i]];
+    }
+    PyBuffer_Release(&bi); PyBuffer_Release(&bc); PyBuffer_Release(&bu); PyBuffer_Release(&bh);
+    PyBuffer_Release(&os); PyBuffer_Release(&oh);
+    if (!ok) {
+        PyErr_SetString(PyExc_IndexError, "scatter: index out of range");
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
+static PyObject *py_binom_tail(PyObject *self, PyObject *args)
+{
+    long n, k;
+    double p;
+    if (!PyArg_ParseTuple(args, "lld", &n, &k, &p)) return NULL;
+    return PyFloat_FromDouble(binom_tail(n, k, p));
+}
+
+static PyObject *py_tail_bound(PyObject *self, PyObject *args)
+{
+    long n, k;
+    double p;
+    if (!PyArg_ParseTuple(args, "lld", &n, &k, &p)) return NULL;
+    return PyFloat_FromDouble(tail_bound(n, k, p));
+}
+
+static PyMethodDef methods[] = {
+    {"lis_solve", py_lis_solve, METH_VARARGS, "lost-in-space search (see _kernels.py)"},
+    {"track_solve", py_track_solve, METH_VARARGS, "tracking (see _kernels.py)"},
+    {"wahba", py_wahba, METH_VARARGS, "QUEST of unit vectors (see _kernels.py)"},
+    {"pinhole_unproject", py_pinhole_unproject, METH_VARARGS, "see _kernels.py"},
+    {"unit_rows", py_unit_rows, METH_VARARGS, "see _kernels.py"},
+    {"scatter", py_scatter, METH_VARARGS, "see _kernels.py"},
+    {"binom_tail", py_binom_tail, METH_VARARGS, "P(Bin(n, p) >= k)"},
+    {"tail_bound", py_tail_bound, METH_VARARGS, "C(n, k) p^k, a bound on P(Bin(n, p) >= k)"},
+    {NULL, NULL, 0, NULL}};
+
+static struct PyModuleDef moddef = {PyModuleDef_HEAD_INIT, "_ckernels",
+                                    "Compiled star-identification loops (see _kernels.py).", -1,
+                                    methods};
+
+PyMODINIT_FUNC PyInit__ckernels(void)
+{
+    init_perms();
+    return PyModule_Create(&moddef);
+}

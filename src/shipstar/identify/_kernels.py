@@ -1,0 +1,202 @@
+"""Checked entry to the compiled identification loops (:mod:`._ckernels`, plain C).
+
+The C functions take raw buffers; this module makes every array the dtype, order and
+size they expect (per database once: the converted arrays are cached with it) and
+turns their plain results into arrays.
+"""
+
+from __future__ import annotations
+
+import struct
+import weakref
+
+import numpy as np
+
+from shipstar.identify import _ckernels
+from shipstar.identify._verify import unit_f64
+
+__all__ = ["db_buffers", "lis_solve", "track_solve", "wahba", "pinhole_unproject", "unit_rows"]
+
+_NO_ROWS = np.empty(0, dtype=np.int64)
+
+#: scalar parameters travel as packed native int64 / float64 buffers
+_pack_i10 = struct.Struct("=10q").pack
+_pack_d15 = struct.Struct("=15d").pack
+_pack_i3 = struct.Struct("=3q").pack
+_pack_d9 = struct.Struct("=9d").pack
+_pack_d4 = struct.Struct("=4d").pack
+
+_BUFFERS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+#: ``[database, buffers]`` of the database used last (a session uses one or two)
+_LAST: list = [None, None]
+
+
+class _DbBuffers:
+    """A database's arrays as the kernels read them."""
+
+    __slots__ = ("u64", "u32", "pstars", "key_lo", "key_hi_start", "cell_start", "cell_index",
+                 "cell_u", "hip",
+                 "grid_n", "key_bits", "lo_bits", "bins", "n_patterns")
+
+    def __init__(self, db):
+        self.u64 = np.ascontiguousarray(unit_f64(db), dtype=np.float64)
+        self.u32 = np.ascontiguousarray(db.u_icrs, dtype=np.float32)
+        self.pstars = np.ascontiguousarray(db.pattern_stars, dtype=np.uint32)
+        self.key_lo = np.ascontiguousarray(db.key_lo, dtype=np.uint16)
+        self.key_hi_start = np.ascontiguousarray(db.key_hi_start, dtype=np.int32)
+        self.cell_start = np.ascontiguousarray(db.cell_start, dtype=np.int32)
+        self.cell_index = np.ascontiguousarray(db.cell_index, dtype=np.uint32)
+        self.hip = np.ascontiguousarray(db.hip, dtype=np.int32)
+        n_cells = 6 * int(db.grid_n) ** 2
+        if (self.u64.shape != (db.n_stars, 3) or self.pstars.shape != (db.n_patterns, 4)
+                or self.key_lo.shape != (db.n_patterns,) or self.cell_start.shape != (n_cells + 1,)
+                or int(self.cell_start[-1]) != self.cell_index.shape[0]
+                or int(self.key_hi_start[-1]) != db.n_patterns or int(self.key_hi_start[0]) != 0
+                or int(self.cell_start[0]) != 0
+                or bool(np.any(np.diff(self.key_hi_start) < 0))
+                or bool(np.any(np.diff(self.cell_start) < 0))
+                or (self.pstars.size and int(self.pstars.max()) >= db.n_stars)
+                or (self.cell_index.size and int(self.cell_index.max()) >= db.n_stars)):
+            raise ValueError("star database arrays are inconsistent")
+        # the star vectors of every cell in cell order: a prediction reads them in sequence
+        self.cell_u = np.ascontiguousarray(self.u64[self.cell_index.astype(np.intp)])
+        self.grid_n, self.key_bits, self.lo_bits = int(db.grid_n), int(db.key_bits), int(db.lo_bits)
+        self.bins, self.n_patterns = int(db.params.bins), int(db.n_patterns)
+
+
+def db_buffers(db) -> _DbBuffers:
+    """The kernels' view of a database (made once per database)."""
+    if _LAST[0] is db:
+        return _LAST[1]
+    buf = _BUFFERS.get(db)
+    if buf is None:
+        buf = _BUFFERS[db] = _DbBuffers(db)
+    _LAST[:] = [db, buf]
+    return buf
+
+
+def _f64(a, cols: int) -> np.ndarray:
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    if a.ndim != 2 or a.shape[1] != cols:
+        raise ValueError(f"expected an (N, {cols}) array, got {a.shape}")
+    return a
+
+
+_CHECKED: dict = {}
+
+
+def _check_combos(combos, ends, k: int) -> None:
+    """Pattern rows must be int64 (C, 4) with stars < k, ``ends`` int64 rows <= C
+    (checked once per pair of arrays: they come from lru caches)."""
+    key = (id(combos), id(ends), k)
+    if _CHECKED.get(key) == (combos, ends):
+        return
+    ok = (isinstance(combos, np.ndarray) and combos.dtype == np.int64 and combos.ndim == 2
+          and combos.shape[1] == 4 and combos.flags.c_contiguous
+          and isinstance(ends, np.ndarray) and ends.dtype == np.int64 and ends.ndim == 1
+          and (combos.size == 0 or 0 <= int(combos.min()) and int(combos.max()) < k)
+          and (ends.size == 0 or 0 <= int(ends.min()) and int(ends.max()) <= combos.shape[0]))
+    if not ok:
+        raise ValueError("bad pattern combinations")
+    if len(_CHECKED) > 64:
+        _CHECKED.clear()
+    _CHECKED[key] = (combos, ends)
+
+
+def _usable(usable) -> np.ndarray:
+    return _NO_ROWS if usable is None else np.ascontiguousarray(usable, dtype=np.int64)
+
+
+def lis_solve(t, u0, k: int, combos, ends, db, *, n_field: int, usable, min_matches: int,
+              max_candidates: int, fit: bool, fit_radial: bool, e_edge: float, max_edge: float,
+              min_edge: float, model_tol: float, ftol: float, error_rad: float, half_diag: float,
+              gate_fine: float, area0: float, p_false_max: float, max_time_s: float, bounds):
+    """The lost-in-space search over the usable stars ``t (n, 2)``, ``u0 (n, 3)``.
+
+    ``combos (C, 4)`` are the 4-star patterns of the brightest ``k`` stars in search
+    order and ``ends`` the end rows of their batches; ``usable`` the input rows of the
+    ``n`` stars (None: rows ``0 .. n - 1``) of the ``n_field`` input stars.  Returns
+    ``(status, C (3, 3), star_index (n_field,), hip (n_field,), n_matched, n_verified,
+    n_patterns, s, k1, p_false, rms_arcsec)``; status 1: solved, 0: no candidate
+    verified, 2: stopped by ``max_time_s`` / ``max_candidates``.
+    """
+    t = _f64(t, 2)
+    u0 = _f64(u0, 3)
+    n = t.shape[0]
+    if u0.shape[0] != n or not 4 <= k <= min(n, 32) or n > n_field:
+        raise ValueError("bad lost-in-space input sizes")
+    _check_combos(combos, ends, k)
+    b = db_buffers(db)
+    ip = _pack_i10(k, b.grid_n, b.key_bits, b.lo_bits, b.bins, b.n_patterns, min_matches,
+                   max_candidates, int(fit), int(fit_radial))
+    y0, y1, z0, z1 = bounds
+    dp = _pack_d15(e_edge, max_edge, min_edge, model_tol, ftol, error_rad, half_diag, gate_fine,
+                   area0, p_false_max, max_time_s, y0, y1, z0, z1)
+    C = np.empty((3, 3))
+    img = np.empty(n, dtype=np.int64)
+    cat = np.empty(n, dtype=np.int64)
+    star = np.empty(n_field, dtype=np.int64)
+    hip = np.empty(n_field, dtype=np.int64)
+    status, m, n_verified, n_patterns, s, k1, p_false, rms = _ckernels.lis_solve(
+        t, u0, combos, ends, b.u64, b.u32, b.pstars, b.key_lo, b.key_hi_start, b.cell_start,
+        b.cell_index, b.cell_u, ip, dp, C, img, cat, _usable(usable), b.hip, star, hip)
+    return status, C, star, hip, m, n_verified, n_patterns, s, k1, p_false, rms
+
+
+def track_solve(t, w, C_prior, db, *, n_field: int, usable, min_matches: int, n_trials: int, box,
+                gate: float, gate_prior: float, gate_shift: float, area: float, limit: float):
+    """Tracking of the stars ``t (n, 2)`` (tangent plane at the focal scale), ``w (n, 3)``
+    (their unit vectors; input rows ``usable``, None: ``0 .. n - 1``, of ``n_field``)
+    from ``C_prior (3, 3)``.  Returns ``(code, count, p, voted, C (3, 3), star_index
+    (n_field,), hip (n_field,), n_matched, p_false, rms_arcsec)``: code 0 solved, else
+    the reason (see :mod:`._tracking`) with its count / chance probability."""
+    t = _f64(t, 2)
+    w = _f64(w, 3)
+    n = t.shape[0]
+    if w.shape[0] != n or n > 64 or n > n_field:
+        raise ValueError("bad tracking input sizes")
+    C_prior = np.ascontiguousarray(C_prior, dtype=np.float64)
+    if C_prior.shape != (3, 3):
+        raise ValueError("C_prior must be (3, 3)")
+    b = db_buffers(db)
+    ip = _pack_i3(b.grid_n, min_matches, n_trials)
+    cy, cz, hy, hz = box
+    dp = _pack_d9(cy, cz, hy, hz, gate, gate_prior, gate_shift, area, limit)
+    C = np.empty((3, 3))
+    img = np.empty(max(n, 1), dtype=np.int64)
+    cat = np.empty(max(n, 1), dtype=np.int64)
+    star = np.empty(n_field, dtype=np.int64)
+    hip = np.empty(n_field, dtype=np.int64)
+    code, count, p, voted, m, p_false, rms, _ = _ckernels.track_solve(
+        t, w, C_prior, b.cell_u, b.cell_start, b.cell_index, ip, dp, C, img, cat, _usable(usable),
+        b.hip, star, hip)
+    return code, count, p, bool(voted), C, star, hip, m, p_false, rms
+
+
+def pinhole_unproject(xy, x0_px: float, y0_px: float, pixel_mm: float, f_mm: float):
+    """``(u (N, 3), t (N, 2), all_finite)``: :meth:`Camera.unproject` of a camera without
+    distortion and the tangent-plane coordinates ``u[:, 1:] / u[:, :1]``."""
+    xy = _f64(xy, 2)
+    u = np.empty((xy.shape[0], 3))
+    t = np.empty((xy.shape[0], 2))
+    finite = _ckernels.pinhole_unproject(xy, _pack_d4(x0_px, y0_px, pixel_mm, f_mm), u, t)
+    return u, t, finite
+
+
+def unit_rows(t, scale: float, k1: float) -> np.ndarray:
+    """:meth:`StarField.unit` ``(N, 3)`` of every row of ``t (N, 2)``."""
+    t = _f64(t, 2)
+    out = np.empty((t.shape[0], 3))
+    _ckernels.unit_rows(t, float(scale), float(k1), out)
+    return out
+
+
+def wahba(w_body, v_ref) -> np.ndarray:
+    """The compiled QUEST: ``C_ref_from_body`` for matched unit vectors ``(k, 3)``."""
+    w = _f64(w_body, 3)
+    v = _f64(v_ref, 3)
+    if w.shape != v.shape or w.shape[0] == 0:
+        raise ValueError("w_body and v_ref must be of one shape (k, 3), k >= 1")
+    C = np.empty((3, 3))
+    _ckernels.wahba(w, v, C)
+    return C

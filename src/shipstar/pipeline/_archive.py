@@ -1,0 +1,412 @@
+"""Archive reprocessing on Dask: the driver behind ``shipstar measure-archive``.
+
+A session is cut into the chunks of ``shipstar measure`` (:mod:`shipstar.pipeline._measure`:
+each chunk of each sensor is one task, processed by a fresh
+:class:`~shipstar.pipeline._sensor.SensorProcessor` from :data:`~shipstar.pipeline._measure.WARMUP_S`
+seconds before the chunk, so that it starts with a lost-in-space solve and its first
+frames see the state an uninterrupted pass would have).  Here the tasks are
+``dask.distributed`` futures (:class:`DaskTasks`), run on any Dask cluster: a
+``LocalCluster`` on this machine or a scheduler's address.  Their results come back to
+this process whole (a chunk of one sensor: a list of frame results) and go through the
+same merge, :class:`~shipstar.pipeline._engine.SessionEngine`, CSV writer and checkpoint
+as ``measure``'s (:func:`~shipstar.pipeline._measure.run_measure` with ``tasks=``): the
+rows are those of ``shipstar measure``, byte for byte.
+
+A task that raises is retried by Dask (``retries``); a worker lost in the middle of a task
+has it rescheduled by the scheduler (up to its ``allowed-failures``).  Every attempt is
+logged on the scheduler (:data:`EVENT_TOPIC`, one event at the start of each attempt and
+one per exception), and :func:`attempts_report` turns them into one line per chunk that
+ran more than once.  A chunk that still fails raises :class:`ChunkFailed` naming it: the
+run ends with ``OUT.partial`` holding the rows before that chunk (and ``OUT.resume``,
+to continue later), never a complete-looking file with rows missing.
+
+``dask`` is imported only here and only when a run starts (not at ``import shipstar``).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+import uuid
+from dataclasses import dataclass
+
+from shipstar.errors import ShipstarError
+
+__all__ = ["ChunkFailed", "DaskTasks", "EVENT_TOPIC", "attempts_report", "connect", "describe_chunk",
+           "run_archive", "ArchiveOutcome", "DEFAULT_RETRIES", "DEFAULT_RETRY_DELAY_S"]
+
+#: The scheduler's event topic of every attempt (``client.get_events(EVENT_TOPIC)``).
+EVENT_TOPIC = "shipstar-archive"
+#: Retries of a task that raised (Dask ``retries``): three attempts in all.
+DEFAULT_RETRIES = 2
+#: Seconds a failed attempt waits before its retry starts.
+DEFAULT_RETRY_DELAY_S = 1.0
+#: Seconds between looks at the futures while none has finished.
+_POLL_S = 0.05
+#: Dask settings of a LocalCluster (and of this process): without the statistical profiler
+#: (a stack sample of the busy thread every 10 ms), the GIL monitor and the 20 ms event-loop
+#: tick, which together cost an idle worker and this process 4 % of a core each (measured:
+#: 0.55 and 0.51 s of CPU in 15 s idle, against 0.05 and 0.10 s with these).
+QUIET_DASK = {"distributed.worker.profile.enabled": False, "distributed.admin.system-monitor.gil.enabled": False,
+              "distributed.admin.tick.interval": "1s", "distributed.worker.memory.monitor-interval": "1s",
+              "distributed.admin.system-monitor.interval": "2s"}
+#: The environment a LocalCluster's workers start with: one BLAS thread, and not Dask's
+#: ``MALLOC_TRIM_THRESHOLD_``, which fixes glibc's mmap threshold so that every image-sized
+#: array is mapped and unmapped afresh (measured: 4.8 against 1.1 ms of system time a frame).
+WORKER_ENVIRON = {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1, "OPENBLAS_NUM_THREADS": 1}
+
+
+class ChunkFailed(ShipstarError):
+    """A chunk whose task failed on every attempt (or was lost with its workers)."""
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def describe_chunk(chunk, source, chunk_s: float) -> str:
+    """``chunk 3 of sensor A2 (180-240 s, frames A2_01800.fits .. A2_02399.fits)``: a
+    task's chunk (:class:`~shipstar.pipeline._measure._Chunk`) in words."""
+    t0, t1 = chunk.index * chunk_s, (chunk.index + 1) * chunk_s
+    text = f"chunk {chunk.index} of sensor {source.name} ({t0:g}-{t1:g} s"
+    names = getattr(source.piece(chunk.first, chunk.hi), "names", None) if chunk.hi > chunk.first else None
+    if names:
+        text += f", frames {names[0]} .. {names[-1]}"
+    elif chunk.hi <= chunk.first:
+        text += ", no frames of its own"
+    return text + ")"
+
+
+# -- on the workers --------------------------------------------------------------------------
+
+#: One chunk at a time per process: the warnings of a chunk are recorded with
+#: ``warnings.catch_warnings``, which is process-wide, so a worker's further threads
+#: would only mix their warnings up (give workers one thread each, ``--nthreads 1``).
+_PROCESS_LOCK = threading.Lock()
+
+
+def _log_event(run_id: str, k: int, what: str, reason: str = "") -> None:
+    from distributed import get_worker
+
+    try:
+        worker = get_worker()
+    except ValueError:                                    # pragma: no cover - not on a worker
+        return
+    worker.log_event(EVENT_TOPIC, {"run": run_id, "task": k, "what": what, "worker": worker.address,
+                                   "reason": reason})
+
+
+def _the_job(job):
+    return job
+
+
+@dataclass(frozen=True, eq=False)
+class _Loaded:
+    frames: list
+
+    def load(self) -> list:
+        return self.frames
+
+
+def _check_readable(frames) -> None:
+    """Every frame file of the chunk opens and reads here (raises OSError): a frame that was
+    indexed but cannot be read on this worker now (a file system not mounted, a file
+    server's hiccup) fails the task, to be retried, rather than becoming a failed frame."""
+    for f in frames:
+        if f.path is not None:
+            with open(f.path, "rb") as fh:
+                fh.read(1)
+
+
+def _chunk_task(job, sensor: int, piece, lo: int, keep_from: int, run_id: str, k: int,
+                retry_delay_s: float = 0.0) -> list:
+    """A task on a Dask worker: frames ``lo ..`` of one sensor (``piece``) through a fresh
+    processor; returns every ``(result, warnings)`` from frame ``keep_from`` on.  After an
+    error it waits ``retry_delay_s`` before raising (Dask retries at once: a transient
+    fault gets that long to clear)."""
+    from shipstar.pipeline._measure import process_chunk
+
+    _log_event(run_id, k, "start")
+    try:
+        frames = piece.load()
+        _check_readable(frames)
+        with _PROCESS_LOCK:
+            items = []
+            for batch in process_chunk(job, sensor, _Loaded(frames), lo, keep_from, 1 << 30):
+                items.extend(batch)
+    except Exception as exc:
+        _log_event(run_id, k, "error", _one_line(exc))
+        time.sleep(retry_delay_s)
+        raise
+    return items
+
+
+# -- on the client ---------------------------------------------------------------------------
+
+class DaskTasks:
+    """Runs a session's tasks as Dask futures, a bounded number ahead of the merge, and
+    hands each task's results back whole (the runner interface of
+    :func:`~shipstar.pipeline._measure.run_measure`'s ``tasks``).  A finished task's
+    results (~4.6 kB a frame: 2.8 MB for 60 s of one sensor at 10 frames/s) stay in its
+    worker's memory until the merge needs them: this process holds one chunk at a time.
+
+    Parameters
+    ----------
+    client : distributed.Client
+    job : MeasureJob
+        Sent to the scheduler once (a task whose result it is).
+    sources : sequence of FrameSource
+        Their pieces are sent with the tasks (a FITS piece: names and times only).
+    order : list of _Chunk
+        The tasks, in merge order.
+    run_id : str
+        Names this run's tasks and events on the scheduler.
+    chunk_s : float
+    retries : int
+        Dask retries of a task that raised.
+    retry_delay_s : float
+        A failed attempt waits this long before it ends (and the retry starts).
+    """
+
+    def __init__(self, client, job, sources, order, *, run_id: str, chunk_s: float, retries: int = DEFAULT_RETRIES,
+                 retry_delay_s: float = DEFAULT_RETRY_DELAY_S):
+        from distributed import as_completed
+
+        self.client, self.sources, self.order = client, sources, order
+        self.run_id, self.chunk_s, self.retries = run_id, float(chunk_s), int(retries)
+        self.retry_delay_s = float(retry_delay_s)
+        # the job as a task's result, not scattered data: a worker lost with it has it
+        # computed again, where scattered data would be gone for good
+        self.job = client.submit(_the_job, job, key=f"shipstar-job-{run_id}", pure=False)
+        self.futures: dict = {}                         # task -> future, not yet finished
+        self.results: dict = {}                         # task -> future, finished, not yet merged
+        self.failed: dict = {}                          # task -> why, raised when the merge needs it
+        self.done = 0
+        self.next_submit = 0
+        self._ac = as_completed(loop=client.loop)
+        self._ahead, self._ahead_at = 0, -1e9
+        self.closed = False
+
+    def _window(self) -> int:
+        """Tasks in flight or waiting to be merged: twice the cluster's threads plus a row
+        (looked up every few seconds: an adaptive cluster grows and shrinks)."""
+        now = time.monotonic()
+        if now - self._ahead_at > 5.0:
+            threads = sum(self.client.nthreads().values())
+            self._ahead = max(8, 2 * threads + len(self.sources))
+            self._ahead_at = now
+        return self._ahead
+
+    def _submit(self) -> None:
+        window = self._window()
+        while self.next_submit < len(self.order) and len(self.futures) + len(self.results) < window \
+                and not self.failed:
+            k, c = self.next_submit, self.order[self.next_submit]
+            piece = self.sources[c.sensor].piece(c.lo, c.hi)
+            f = self.client.submit(_chunk_task, self.job, c.sensor, piece, c.lo, c.keep_from, self.run_id, k,
+                                   self.retry_delay_s,
+                                   key=f"shipstar-chunk-{self.run_id}-{k}", retries=self.retries, pure=False)
+            self.futures[k] = f
+            self._ac.add(f)
+            self.next_submit += 1
+
+    def describe(self, k: int) -> str:
+        c = self.order[k]
+        return describe_chunk(c, self.sources[c.sensor], self.chunk_s)
+
+    def _collect(self, f) -> None:
+        k = next(kk for kk, ff in self.futures.items() if ff is f)
+        if f.status == "finished":                      # its results stay on the worker until merged
+            self.results[k] = f
+            del self.futures[k]
+            self.done += 1
+            return
+        if f.status == "error":
+            exc = f.exception()
+            attempts = self.retries + 1
+            if type(exc).__name__ == "KilledWorker":
+                why = "its workers died on every attempt (out of memory, or killed)"
+            else:
+                why = f"{attempts} attempt{'s' if attempts > 1 else ''} failed, the last with {_one_line(exc)}"
+            self.failed[k] = f"{self.describe(k)}: {why}"
+        else:
+            self.failed[k] = f"{self.describe(k)}: its task was {f.status} (the scheduler or the cluster went away)"
+        del self.futures[k]
+
+    def next_batch(self, ks, stop):
+        """The results of one of tasks ``ks``: ``(k, items, True)``; None when ``stop`` was
+        set while waiting.  Raises :class:`ChunkFailed`."""
+        self._submit()
+        while True:
+            for k in ks:
+                if k in self.results:
+                    items = self.results.pop(k).result()
+                    self._submit()
+                    return k, items, True
+                if k in self.failed:                    # every row before it is written by now
+                    raise ChunkFailed(self.failed[k])
+            if stop is not None and stop.is_set():
+                return None
+            ready = self._ac.next_batch(block=False)
+            if not ready:
+                time.sleep(_POLL_S)
+                continue
+            for f in ready:
+                self._collect(f)
+            self._submit()
+
+    def close(self, abort: bool) -> None:
+        """Cancel what is still running (idempotent)."""
+        if self.closed:
+            return
+        self.closed = True
+        pending = list(self.futures.values()) + list(self.results.values())
+        self.futures.clear()
+        self.results.clear()
+        try:
+            if pending:
+                self.client.cancel(pending)
+            self.client.cancel([self.job])
+        except Exception:                                  # pragma: no cover - the scheduler is gone
+            pass
+
+
+def attempts_report(client, run_id: str, describe) -> list:
+    """One line per task of ``run_id`` that ran more than once or raised: how many times it
+    started, the distinct errors its attempts raised, and how many attempts were lost with
+    their worker (a start followed by neither an error nor the result, then another
+    start).  ``describe(k)`` names task ``k``."""
+    try:
+        events = client.get_events(EVENT_TOPIC)
+    except Exception:                                      # pragma: no cover - the scheduler is gone
+        return []
+    by_task: dict = {}
+    for _, msg in events:
+        if isinstance(msg, dict) and msg.get("run") == run_id:
+            by_task.setdefault(msg["task"], []).append(msg)
+    lines = []
+    for k in sorted(by_task):
+        msgs = by_task[k]
+        starts = [m for m in msgs if m["what"] == "start"]
+        errors = [m for m in msgs if m["what"] == "error"]
+        if len(starts) <= 1 and not errors:
+            continue
+        lost = len(starts) - len(errors) - 1
+        parts = [f"{len(starts)} attempt{'s' if len(starts) != 1 else ''}"]
+        if errors:
+            parts.append("raised " + "; ".join(dict.fromkeys(m["reason"] for m in errors)))
+        if lost > 0:
+            parts.append(f"{lost} lost with {'its worker' if lost == 1 else 'their workers'}")
+        lines.append(f"{describe(k)}: " + ", ".join(parts))
+    return lines
+
+
+@dataclass(frozen=True, eq=False)
+class ArchiveOutcome:
+    """What a session's run on Dask gave.
+
+    Attributes
+    ----------
+    measure : MeasureOutcome or None
+        None when a chunk failed.
+    failed : str
+        The one-line reason (naming the chunk) when a chunk failed, else ``""``.
+    attempts : tuple of str
+        :func:`attempts_report`'s lines: chunks that ran more than once.
+    n_tasks : int
+    """
+
+    measure: object
+    failed: str
+    attempts: tuple
+    n_tasks: int
+
+
+def run_archive(client, job, sources, out, *, retries: int = DEFAULT_RETRIES,
+                retry_delay_s: float = DEFAULT_RETRY_DELAY_S, **kwargs) -> ArchiveOutcome:
+    """One session through :func:`~shipstar.pipeline._measure.run_measure` with its tasks
+    on Dask (``client``).
+
+    Parameters
+    ----------
+    client : distributed.Client
+    job : MeasureJob
+    sources : sequence of FrameSource
+    out : str or Path
+    retries : int
+        Dask retries of a task that raised.
+    retry_delay_s : float
+        A failed attempt waits this long before its retry.
+    **kwargs
+        As :func:`~shipstar.pipeline._measure.run_measure` (``truth``, ``comments``,
+        ``resume``, ``chunk_s``, ``progress``, ``stop``); not ``workers``.
+
+    Returns
+    -------
+    ArchiveOutcome
+        A failed chunk is in ``failed`` (``OUT.partial`` and ``OUT.resume`` kept), not
+        raised; every other error is raised.
+    """
+    from shipstar.pipeline._measure import CHUNK_S, run_measure
+
+    run_id = uuid.uuid4().hex[:12]
+    chunk_s = kwargs.get("chunk_s", CHUNK_S)
+    made: list = []
+
+    def tasks(job_, sources_, order):
+        made.append(DaskTasks(client, job_, sources_, order, run_id=run_id, chunk_s=chunk_s, retries=retries,
+                               retry_delay_s=retry_delay_s))
+        return made[0]
+
+    failed, outcome = "", None
+    try:
+        outcome = run_measure(job, sources, out, tasks=tasks, **kwargs)
+    except ChunkFailed as exc:
+        failed = str(exc)
+    runner = made[0] if made else None
+    attempts = tuple(attempts_report(client, run_id, runner.describe)) if runner is not None else ()
+    return ArchiveOutcome(outcome, failed, attempts, len(runner.order) if runner is not None else 0)
+
+
+def connect(scheduler: str | None = None, *, workers: int = 2, threads_per_worker: int = 1,
+            timeout_s: float = 10.0):
+    """A Dask client: to ``scheduler`` (``tcp://HOST:PORT``), else to a new LocalCluster of
+    ``workers`` processes.  Returns ``(client, cluster or None)``; close both after use.
+
+    Raises
+    ------
+    ShipstarError
+        The scheduler cannot be reached within ``timeout_s`` (one line).
+    """
+    import logging
+    import signal
+
+    import dask
+    from distributed import Client, LocalCluster
+
+    from shipstar.pipeline._measure import one_blas_thread_for_children
+
+    if scheduler:
+        try:
+            return Client(scheduler, timeout=timeout_s, set_as_default=False), None
+        except (OSError, TimeoutError, ValueError, TypeError) as exc:
+            raise ShipstarError(f"cannot reach the Dask scheduler at {scheduler} within {timeout_s:g} s "
+                                f"({_one_line(exc)})") from None
+    # the workers ignore Ctrl-C (sent to the whole process group at a terminal): this process
+    # stops them after writing what was finished
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN) if threading.current_thread() is threading.main_thread() \
+        else None
+    try:
+        with one_blas_thread_for_children(), dask.config.set(QUIET_DASK), \
+                dask.config.set({"distributed.nanny.pre-spawn-environ": WORKER_ENVIRON}):
+            # no dashboard; the scheduler's small HTTP server (health, metrics) on a free port
+            # rather than 8787, which another cluster may hold; the workers' own error logs
+            # (a failed attempt's traceback) silenced: the command reports every attempt
+            cluster = LocalCluster(n_workers=int(workers), threads_per_worker=int(threads_per_worker),
+                                   processes=True, dashboard_address=None, silence_logs=logging.CRITICAL,
+                                   host="127.0.0.1", scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
+    finally:
+        if old is not None:
+            signal.signal(signal.SIGINT, old)
+    return Client(cluster, set_as_default=False), cluster
