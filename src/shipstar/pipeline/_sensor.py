@@ -237,14 +237,25 @@ class FrameResult:
                            sigma_rad=h.sigma_rad[keep], info_per_rad2=info)
 
 
-def direction_info(camera, xy_px, cov_px2, shape=None, step_px: float = 0.5):
+def direction_info(camera, xy_px, cov_px2, shape=None, w_sensor=None):
     """Information matrices of the directions ``camera.unproject(xy_px)`` whose centroids
     have covariances ``cov_px2`` (N, 2, 2), times the error shape ``shape`` (2, 2).
 
-    With ``J`` (3 x 2) the derivative of the unit direction by the pixel position (central
-    differences) and ``L L^T = cov`` (Cholesky), the centroid's covariance is
-    ``L S L^T`` and the direction's information ``J+^T (L S L^T)^-1 J+``,
-    ``J+ = (J^T J)^-1 J^T``.
+    With ``J`` (3 x 2) the derivative of the unit direction by the pixel position and
+    ``L L^T = cov`` (Cholesky), the centroid's covariance is ``L S L^T`` and the
+    direction's information ``J+^T (L S L^T)^-1 J+``, ``J+ = (J^T J)^-1 J^T``.  ``J`` is
+    the pinhole's, ``(I - w w^T) [[0, 0], [0, -p], [p, 0]] w_x / f`` (x right turns the
+    direction towards +Z, y down towards -Y): the distortion changes it by its gradient,
+    under 1e-3 of it, and so the weights by as little.
+
+    Parameters
+    ----------
+    camera : shipstar.camera.Camera
+    xy_px : ndarray, shape (N, 2)
+    cov_px2 : ndarray, shape (N, 2, 2)
+    shape : ndarray, shape (2, 2), optional
+    w_sensor : ndarray, shape (N, 3), optional
+        ``camera.unproject(xy_px)`` when already known.
 
     Returns
     -------
@@ -253,17 +264,17 @@ def direction_info(camera, xy_px, cov_px2, shape=None, step_px: float = 0.5):
     whiten_per_rad : ndarray, shape (N, 2, 3)
         ``L^-1 J+``: a direction residual in units of the centroid's ``cov`` (without ``shape``).
     """
-    xy = np.asarray(xy_px, float)
-    dx, dy = np.array([step_px, 0.0]), np.array([0.0, step_px])
-    jx = (camera.unproject(xy + dx) - camera.unproject(xy - dx)) / (2 * step_px)
-    jy = (camera.unproject(xy + dy) - camera.unproject(xy - dy)) / (2 * step_px)
-    J = np.stack([jx, jy], axis=-1)                                   # (N, 3, 2)
-    Jp = np.linalg.solve(np.swapaxes(J, 1, 2) @ J, np.swapaxes(J, 1, 2))  # (N, 2, 3)
+    w = camera.unproject(xy_px) if w_sensor is None else np.asarray(w_sensor, float)
+    k = camera.pixel_mm / camera.f_mm * w[:, 0]                      # rad per px along each axis
+    P = np.eye(3) - w[:, :, None] * w[:, None, :]
+    J = np.stack([P[:, :, 2] * k[:, None], -P[:, :, 1] * k[:, None]], axis=-1)   # (N, 3, 2)
+    Jt = np.swapaxes(J, 1, 2)
+    Jp = np.linalg.solve(Jt @ J, Jt)                                  # (N, 2, 3)
     L = np.linalg.cholesky(np.asarray(cov_px2, float))
     whiten = np.linalg.solve(L, Jp)
-    S = np.eye(2) if shape is None else np.asarray(shape, float)
+    Si = np.eye(2) if shape is None else np.linalg.inv(np.asarray(shape, float))
     # (L S L^T)^-1 = L^-T S^-1 L^-1: info = whiten^T S^-1 whiten
-    return np.swapaxes(whiten, 1, 2) @ np.linalg.inv(S) @ whiten, whiten
+    return np.swapaxes(whiten, 1, 2) @ Si @ whiten, whiten
 
 
 def _solve_hor(w_sensor, inputs: _SolveInputs, weather, options):
@@ -444,7 +455,7 @@ class SensorProcessor:
         weights = None if (sigma is not None or sigma_px is None) else sigma_px[rows] ** -2.0
         info = whiten = None
         if weights is not None and cov_px2 is not None:
-            info, whiten = direction_info(cam, xy[rows], cov_px2[rows], self.conditions.noise_shape.matrix())
+            info, whiten = direction_info(cam, xy[rows], cov_px2[rows], self.conditions.noise_shape.matrix(), w)
         inputs = _SolveInputs(v_true, sigma, weights, info, whiten)
         return _solve_hor(w, inputs, weather, opt), site, weather, int(rows.size), inputs
 
