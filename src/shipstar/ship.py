@@ -95,12 +95,17 @@ class SensorStars:
         The sensor's calibrated installation matrix.
     sigma_rad : float or ndarray, shape (N,)
         Per-star angular measurement error (1-sigma, per axis).
+    info_per_rad2 : ndarray, shape (N, 3, 3), optional
+        Per-star information matrices of ``w_sensor`` (sensor frame, rad^-2) when the errors
+        differ between the two axes across a direction (streaks); the joint solution then
+        weights each axis by its own error.  ``sigma_rad`` still sets the outlier threshold.
     """
 
     w_sensor: np.ndarray
     v_hor: np.ndarray
     C_deck_from_sensor: np.ndarray
     sigma_rad: float | np.ndarray
+    info_per_rad2: np.ndarray | None = None
 
 
 def ship_angles_jacobian(C_hor_from_deck) -> np.ndarray:
@@ -235,7 +240,7 @@ def fuse_joint(sensors: Sequence[SensorStars], *, reject_outliers: bool = True) 
 
     if len(sensors) == 0:
         return ShipAttitude.failed("no sensor data", "joint")
-    w_deck, v_hor, sigma = [], [], []
+    w_deck, v_hor, sigma, info = [], [], [], []
     for s in sensors:
         w = np.atleast_2d(np.asarray(s.w_sensor, float))
         v = np.atleast_2d(np.asarray(s.v_hor, float))
@@ -243,9 +248,18 @@ def fuse_joint(sensors: Sequence[SensorStars], *, reject_outliers: bool = True) 
             raise ShipstarError(f"sensor star arrays must both be (N, 3), got {w.shape} and {v.shape}")
         w_deck.append(w @ np.asarray(s.C_deck_from_sensor, float).T)
         v_hor.append(v)
-        sigma.append(np.broadcast_to(np.asarray(s.sigma_rad, float), (w.shape[0],)))
+        sig = np.broadcast_to(np.asarray(s.sigma_rad, float), (w.shape[0],))
+        sigma.append(sig)
+        R = np.asarray(s.C_deck_from_sensor, float)
+        if s.info_per_rad2 is None:            # isotropic: sigma^-2 (I - w w^T)
+            wd = w_deck[-1] / np.linalg.norm(w_deck[-1], axis=1, keepdims=True)
+            info.append(sig[:, None, None] ** -2 * (np.eye(3) - wd[:, :, None] * wd[:, None, :]))
+        else:
+            info.append(R @ np.asarray(s.info_per_rad2, float) @ R.T)
     w_all, v_all, sig_all = np.concatenate(w_deck), np.concatenate(v_hor), np.concatenate(sigma)
-    sol = solve_attitude(w_all, v_all, sigma_rad=sig_all, reject_outliers=reject_outliers)
+    anisotropic = any(s.info_per_rad2 is not None for s in sensors)
+    sol = solve_attitude(w_all, v_all, sigma_rad=sig_all, reject_outliers=reject_outliers,
+                         info_per_rad2=np.concatenate(info) if anisotropic else None)
     if not sol.solved:
         return ShipAttitude.failed(sol.reason, "joint")
     return _from_C(sol.C_ref_from_body, sol.covariance_rad2, "joint", int(sol.n_used))

@@ -84,6 +84,10 @@ class HorizontalAttitude:
         Refraction model (``shipstar.sky.refraction.MODELS``).
     boresight_refraction_arcsec : float
         The single ``rho(E_boresight)`` applied in ``"boresight"`` mode (NaN otherwise).
+    info_per_rad2 : ndarray, shape (N, 3, 3), or None
+        Per-star information matrices (sensor frame) behind ``covariance_rad2`` when the
+        solve had them (anisotropic centroid errors, ``sensor_attitude_hor(info_per_rad2=)``);
+        NaN rows for stars not used.  None otherwise.
     """
 
     solved: bool
@@ -100,6 +104,7 @@ class HorizontalAttitude:
     refraction: str
     model: str
     boresight_refraction_arcsec: float = math.nan
+    info_per_rad2: np.ndarray | None = None
 
     @property
     def angles_rad(self) -> tuple[float, float, float]:
@@ -235,7 +240,8 @@ def _failed(n: int, reason: str, w, v, refraction: str, model: str) -> Horizonta
 
 def sensor_attitude_hor(w_sensor, v_true_hor, weather, *, model: str = "erfa", refraction: str = "per-star",
                         sigma_rad=None, weights=None, reject_outliers: bool = True,
-                        max_residual_arcsec=None, method: str = "quest") -> HorizontalAttitude:
+                        max_residual_arcsec=None, method: str = "quest",
+                        info_per_rad2=None) -> HorizontalAttitude:
     """Attitude of a sensor in the horizontal frame from its matched stars.
 
     Parameters
@@ -256,6 +262,9 @@ def sensor_attitude_hor(w_sensor, v_true_hor, weather, *, model: str = "erfa", r
         Relative weights (default ``sigma_rad**-2`` or equal).
     reject_outliers, max_residual_arcsec, method
         Passed to :func:`shipstar.attitude.solve_attitude`.
+    info_per_rad2 : array_like, shape (N, 3, 3), optional
+        Per-star information matrices of the measured directions (sensor frame, rad^-2;
+        relative unless ``sigma_rad`` is given), passed to ``solve_attitude``.
 
     Returns
     -------
@@ -289,9 +298,13 @@ def sensor_attitude_hor(w_sensor, v_true_hor, weather, *, model: str = "erfa", r
     wts = None if weights is None else np.asarray(weights, float)
     if wts is not None and wts.shape != (n,):
         raise ShipstarError(f"weights must have shape ({n},), got {wts.shape}")
+    info = None if info_per_rad2 is None else np.asarray(info_per_rad2, float)
+    if info is not None and info.shape != (n, 3, 3):
+        raise ShipstarError(f"info_per_rad2 must have shape ({n}, 3, 3), got {info.shape}")
     sol = solve_attitude(w[ok], v_ref[ok], weights=None if wts is None else wts[ok],
                          sigma_rad=None if sig is None else sig[ok], method=method,
-                         reject_outliers=reject_outliers, max_residual_arcsec=max_residual_arcsec)
+                         reject_outliers=reject_outliers, max_residual_arcsec=max_residual_arcsec,
+                         info_per_rad2=None if info is None else info[ok])
     rho_b = math.nan if bore is None else boresight_refraction_rad(bore, weather, model) * RAD2ASEC
     if not sol.solved:
         return _failed(n, sol.reason, w, v_ref, refraction, model)
@@ -301,8 +314,12 @@ def sensor_attitude_hor(w_sensor, v_true_hor, weather, *, model: str = "erfa", r
     inl[ok] = sol.inliers
     sigma_out = np.full(n, np.nan)
     sigma_out[ok] = sol.sigma_rad
+    info_out = None
+    if sol.info_per_rad2 is not None:
+        info_out = np.full((n, 3, 3), np.nan)
+        info_out[ok] = sol.info_per_rad2
     return HorizontalAttitude(True, "", sol.C_ref_from_body, sol.covariance_rad2, float(sol.rms_arcsec), res, inl,
-                              int(sol.n_used), w, v_ref, sigma_out, refraction, model, rho_b)
+                              int(sol.n_used), w, v_ref, sigma_out, refraction, model, rho_b, info_out)
 
 
 def sensor_attitude_hor_from_catalog(w_sensor, hip, catalog, context, weather, **options) -> HorizontalAttitude:

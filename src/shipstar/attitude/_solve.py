@@ -62,6 +62,10 @@ class AttitudeSolution:
         Per-vector angular error (1-sigma per axis) that ``covariance_rad2`` assumes: the
         given ``sigma_rad``, or, without it, ``s / sqrt(a_rel)`` with ``s`` from the inliers'
         residual scatter (NaN when not solved).
+    info_per_rad2 : ndarray, shape (N, 3, 3), or None
+        With per-direction information matrices given (``solve_attitude(info_per_rad2=)``):
+        those behind ``covariance_rad2``, i.e. the given ones, divided by the variance
+        factor when they were relative (no ``sigma_rad``).  None otherwise.
     """
 
     solved: bool
@@ -74,6 +78,7 @@ class AttitudeSolution:
     inliers: np.ndarray
     n_used: int
     sigma_rad: np.ndarray
+    info_per_rad2: np.ndarray | None = None
 
 
 def _failed(n, reason, residuals_arcsec=None):
@@ -88,6 +93,57 @@ def _spread_rad(u):
     first one: zero when they are all parallel or antiparallel."""
     ang = angle_between_rad(u, u[0])
     return float(np.max(np.minimum(ang, math.pi - ang)))
+
+
+def _check_info(info, n):
+    """The per-direction information matrices ``(N, 3, 3)`` (checked), or None."""
+    if info is None:
+        return None
+    W = np.asarray(info, dtype=float)
+    if W.shape != (n, 3, 3) or not np.all(np.isfinite(W)):
+        raise ShipstarError(f"info_per_rad2 must be {n} finite 3x3 matrices; got shape {W.shape}")
+    return 0.5 * (W + np.swapaxes(W, 1, 2))
+
+
+def _skew(u):
+    """``[u]x`` (N, 3, 3) of vectors ``u`` (N, 3): ``[u]x @ b = u x b``."""
+    S = np.zeros(u.shape[:-1] + (3, 3))
+    S[..., 0, 1], S[..., 0, 2], S[..., 1, 2] = -u[..., 2], u[..., 1], -u[..., 0]
+    S[..., 1, 0], S[..., 2, 0], S[..., 2, 1] = u[..., 2], -u[..., 1], u[..., 0]
+    return S
+
+
+def _rotation_from_vector(e):
+    """Rotation matrix ``exp([e]x)`` of a rotation vector ``e`` (3,) (Rodrigues)."""
+    t = float(np.linalg.norm(e))
+    K = _skew(np.asarray(e, float))
+    if t < 1e-12:
+        return np.eye(3) + K
+    return np.eye(3) + math.sin(t) / t * K + (1.0 - math.cos(t)) / (t * t) * (K @ K)
+
+
+def _fisher_body(w, W):
+    """``sum_i [w_i]x^T W_i [w_i]x`` (3, 3): the attitude information about the body axes
+    of directions ``w`` (M, 3) with information matrices ``W`` (M, 3, 3)."""
+    A = _skew(w)
+    return (np.swapaxes(A, 1, 2) @ W @ A).sum(axis=0)
+
+
+def _refine_anisotropic(C, w, v, W, F):
+    """One Gauss-Newton step from ``C`` on ``sum_i e_i^T W_i e_i``, ``e_i = C^T v_i - w_i``.
+
+    A body-frame correction ``d`` (``C <- C exp([d]x)``) moves the predicted direction
+    ``u_i = C^T v_i`` by ``[u_i]x d``; the normal equations give ``d``, with the normal
+    matrix ``F`` (:func:`_fisher_body`) taken at the measured ``w_i`` (they differ from
+    ``u_i`` by arcseconds: a relative change of 1e-5 in a step of arcseconds).  QUEST's
+    scalar weights are optimal only for isotropic noise; a streak's centroid is less
+    certain along the smear than across it, and this step weights each axis by its own
+    error.  From QUEST's solution one step leaves an error of second order in its size
+    (micro-arcseconds)."""
+    u = v @ C
+    # sum_i [u_i]x^T W_i e_i, and [u]x^T b = -u x b
+    g = -np.cross(u, np.einsum("nij,nj->ni", W, u - w)).sum(axis=0)
+    return C @ _rotation_from_vector(-np.linalg.solve(F, g))
 
 
 def _check_args(w, v, weights, sigma_rad, method, k_sigma, max_residual_arcsec, min_vectors):
@@ -176,7 +232,7 @@ def _thresholds(r, active, a, sigma, k_sigma, max_residual_arcsec):
 
 def solve_attitude(w_body, v_ref, *, weights=None, sigma_rad=None, method="quest",
                    reject_outliers=True, max_residual_arcsec=None, k_sigma=5.0,
-                   min_vectors=2):
+                   min_vectors=2, info_per_rad2=None):
     """Attitude from matched directions, with covariance and outlier rejection.
 
     Parameters
@@ -207,6 +263,14 @@ def solve_attitude(w_body, v_ref, *, weights=None, sigma_rad=None, method="quest
         with probability ``exp(-12.5) = 3.7e-6``.
     min_vectors : int
         Fewest vectors a solution may rest on (>= 2).
+    info_per_rad2 : array_like, shape (N, 3, 3), optional
+        Information matrix (pseudo-inverse covariance, rad^-2, in the body frame, zero
+        along ``w_i``) of each measured direction, for noise that differs between the two
+        axes across it (a streak's centroid: larger along the smear).  The outliers are
+        found with the scalar weights as without it; then the inliers' solution is refined
+        by Gauss-Newton steps weighted by these matrices and the covariance is their
+        ``(sum_i [w_i]x^T W_i [w_i]x)^-1``: absolute with ``sigma_rad`` given, else scaled
+        by the variance factor ``sum_i e_i^T W_i e_i / (2m - 3)`` of the residuals.
 
     Returns
     -------
@@ -225,6 +289,7 @@ def solve_attitude(w_body, v_ref, *, weights=None, sigma_rad=None, method="quest
     a, sigma = _check_args(w, v, weights, sigma_rad, method, k_sigma, max_residual_arcsec,
                            min_vectors)
     n = len(w)
+    info = _check_info(info_per_rad2, n)
     bad = _bad_rows(w, v)
     if bad:
         return _failed(n, bad)
@@ -255,6 +320,8 @@ def solve_attitude(w_body, v_ref, *, weights=None, sigma_rad=None, method="quest
                 f"{thr[worst] * RAD2ASEC:.3g} arcsec threshold and rejecting it would leave "
                 f"fewer than {min_vectors} vectors"), r * RAD2ASEC)
         active[worst] = False
+    if info is not None:
+        return _solution_anisotropic(C, w, v, active, a, sigma, info)
     return _solution(C, r, active, a, sigma, w, weights is not None)
 
 
@@ -285,6 +352,30 @@ def _solution(C, r, active, a, sigma, w, weights_given):
     rms = math.sqrt(float(np.mean(r[active] ** 2))) * RAD2ASEC
     return AttitudeSolution(True, "", C, q_wxyz_from_matrix(C), P, rms, r * RAD2ASEC,
                             active.copy(), m, _assumed_sigma(r, active, a, sigma))
+
+
+def _solution_anisotropic(C, w, v, active, a, sigma, info):
+    """The inliers' solution refined with per-direction information matrices, its
+    covariance from them (see :func:`solve_attitude`)."""
+    m = int(active.sum())
+    W = info[active]
+    try:
+        F = _fisher_body(w[active], W)
+        P = sym3_inverse(F)
+        C = _refine_anisotropic(C, w[active], v[active], W, F)
+    except (ShipstarError, np.linalg.LinAlgError) as exc:
+        return _failed(len(w), f"degenerate geometry: {exc}")
+    r = residuals_rad(C, w, v)
+    scale = 1.0
+    if sigma is None:
+        e = v[active] @ C - w[active]
+        chi2 = float(np.einsum("ni,nij,nj->", e, W, e))
+        scale = chi2 / max(2 * m - 3, 1)
+        P = P * scale
+    rms = math.sqrt(float(np.mean(r[active] ** 2))) * RAD2ASEC
+    info_used = info / scale if scale > 0 else np.full_like(info, np.inf)
+    return AttitudeSolution(True, "", C, q_wxyz_from_matrix(C), P, rms, r * RAD2ASEC,
+                            active.copy(), m, _assumed_sigma(r, active, a, sigma), info_used)
 
 
 def _assumed_sigma(r, active, a, sigma):

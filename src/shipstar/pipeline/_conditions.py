@@ -16,8 +16,13 @@ One :class:`ConditionMonitor` per :class:`~shipstar.pipeline._sensor.SensorProce
 - **seeing** (:class:`NoiseFloor`): the per-star noise floor added in quadrature to the
   extraction's Cramer-Rao sigma is estimated from the attitude residuals of the last
   :data:`FLOOR_FRAMES` solved frames (a median, robust to outliers and to a few
-  misidentified stars), never below ``PipelineOptions.centroid_floor_px``.
-"""
+  misidentified stars), never below ``PipelineOptions.centroid_floor_px``;
+- **the shape of the centroid errors** (:class:`NoiseShape`): a 2 x 2 factor, in image
+  axes, between the errors the residuals show and the extraction's covariances (with the
+  floor), from the same frames.  A star smeared by less than a streak (about 3 px: the
+  extraction fits it as a point) is less certain along its smear than its point
+  covariance says and more certain across; so are streaks whose model is imperfect.
+""" 
 
 from __future__ import annotations
 
@@ -26,7 +31,7 @@ from collections import deque
 
 import numpy as np
 
-__all__ = ["ConditionMonitor", "NoiseFloor", "expected_stars", "CLOUDED_REASON", "MOON_REASON", "SUN_REASON",
+__all__ = ["ConditionMonitor", "NoiseFloor", "NoiseShape", "expected_stars", "CLOUDED_REASON", "MOON_REASON", "SUN_REASON",
            "CLOUDED_FRACTION", "ENVIRONMENT_REASONS"]
 
 #: Reason of a frame lost to cloud (too few stars for the pointing).
@@ -43,6 +48,9 @@ FLOOR_FRAMES = 20
 #: Fewest residuals (stars, pooled over those frames) for an estimate.
 FLOOR_MIN_STARS = 30
 _LN2x2 = 2.0 * math.log(2.0)          # median of chi-square with 2 degrees of freedom
+#: Whitened residuals (in units of their predicted sigma) beyond this are not used by
+#: :class:`NoiseShape` (chi-square with 2 dof exceeds 4.5^2 with probability 4e-5).
+SHAPE_CLIP = 4.5
 
 
 def expected_stars(database, camera, C_icrs_from_sensor=None) -> float:
@@ -118,6 +126,45 @@ def _median(x) -> float:
     return float((part[k - 1] + part[k]) / 2.0)
 
 
+class NoiseShape:
+    """2 x 2 factor ``S`` (image axes) between the centroid errors and their predicted
+    covariances, from recent attitude residuals.
+
+    Each solved frame adds its inlier stars' residuals whitened by the covariance they were
+    predicted with, ``z_i = L_i^-1 e_i`` (``L_i L_i^T`` = the extraction's covariance with
+    the floor, ``e_i`` the residual in px), scaled by ``1 / sqrt(1 - 1.5 / m)`` for the
+    fit's 3 degrees of freedom among ``2 m``.  ``S = mean(z z^T)`` over the last frames;
+    the next frame's covariances are ``L_i S L_i^T``.  Whitened residuals beyond
+    :data:`SHAPE_CLIP` (a misidentified or blended star) are left out.
+    """
+
+    def __init__(self, n_frames: int = FLOOR_FRAMES, min_stars: int = FLOOR_MIN_STARS):
+        self._frames: deque = deque(maxlen=int(n_frames))
+        self.min_stars = int(min_stars)
+        self._cache = None
+
+    def add(self, z) -> None:
+        """Add one frame's whitened residuals ``z`` (M, 2)."""
+        z = np.asarray(z, float).reshape(-1, 2)
+        m = len(z)
+        if m < 3:
+            return
+        z = z[np.all(np.isfinite(z), axis=1)]
+        z = z[np.hypot(z[:, 0], z[:, 1]) < SHAPE_CLIP] / math.sqrt(1.0 - 1.5 / m)
+        self._frames.append((np.einsum("ni,nj->ij", z, z), len(z)))
+        self._cache = None
+
+    def matrix(self):
+        """``S`` (2, 2), or None with fewer than ``min_stars`` residuals."""
+        if self._cache is not None:
+            return self._cache
+        n = sum(k for _, k in self._frames)
+        if n < self.min_stars:
+            return None
+        self._cache = sum(zz for zz, _ in self._frames) / n
+        return self._cache
+
+
 class ConditionMonitor:
     """One sensor's detection of cloud, the Moon and the Sun, trails and seeing."""
 
@@ -130,6 +177,7 @@ class ConditionMonitor:
         self.bodies = BodyPredictor(camera)
         self.persistent = PersistentPixels()
         self.noise_floor = NoiseFloor()
+        self.noise_shape = NoiseShape()
         self.discs: tuple = ()
         #: The last frame: detections dropped per cause, and the positions kept.
         self.last: dict = {}
@@ -191,6 +239,9 @@ class ConditionMonitor:
         cr2 = 1.0 / np.asarray(inputs.weights, float)[keep] - floor_used_px ** 2
         good = cr2 < 0.98                                  # unknown Cramer-Rao sigma (1 px): not used
         self.noise_floor.add(r_px[good] ** 2, np.maximum(cr2[good], 0.0))
+        if inputs.whiten_per_rad is not None:
+            e = h.v_hor[keep] @ np.asarray(h.C_hor_from_sensor) - h.w_sensor[keep]      # C^T v - w, sensor frame
+            self.noise_shape.add(np.einsum("nij,nj->ni", inputs.whiten_per_rad[keep][good], e[good]))
 
 
     def _displacement_px(self, C_then, C_now, xy_px) -> np.ndarray:

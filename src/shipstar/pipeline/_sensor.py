@@ -107,6 +107,12 @@ class _SolveInputs:
     v_true_hor: np.ndarray          # (N, 3) unrefracted apparent places of the identified stars
     sigma_rad: float | None         # known noise (PipelineOptions.centroid_sigma_px), or None
     weights: np.ndarray | None      # (N,) relative weights from the extraction, or None
+    #: (N, 3, 3) information matrices of the measured directions (sensor frame, rad^-2) from
+    #: the extraction's centroid covariances (a streak's is larger along the smear), or None
+    info_per_rad2: np.ndarray | None = None
+    #: (N, 2, 3) maps a direction residual (sensor frame, rad) to its centroid error in units
+    #: of the extraction's covariance with the floor, ``L^-1 J+`` (``_conditions.NoiseShape``)
+    whiten_per_rad: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -222,10 +228,53 @@ class FrameResult:
         h = self.horizontal
         keep = h.inliers
         w = h.w_sensor[keep]
+        info = None if h.info_per_rad2 is None else h.info_per_rad2[keep]
         if C_sensor_correction is not None:
-            w = w @ np.asarray(C_sensor_correction, float).T
+            R = np.asarray(C_sensor_correction, float)
+            w = w @ R.T
+            info = None if info is None else R @ info @ R.T
         return SensorStars(w_sensor=w, v_hor=h.v_hor[keep], C_deck_from_sensor=C_deck_from_sensor,
-                           sigma_rad=h.sigma_rad[keep])
+                           sigma_rad=h.sigma_rad[keep], info_per_rad2=info)
+
+
+def direction_info(camera, xy_px, cov_px2, shape=None, w_sensor=None):
+    """Information matrices of the directions ``camera.unproject(xy_px)`` whose centroids
+    have covariances ``cov_px2`` (N, 2, 2), times the error shape ``shape`` (2, 2).
+
+    With ``J`` (3 x 2) the derivative of the unit direction by the pixel position and
+    ``L L^T = cov`` (Cholesky), the centroid's covariance is ``L S L^T`` and the
+    direction's information ``J+^T (L S L^T)^-1 J+``, ``J+ = (J^T J)^-1 J^T``.  ``J`` is
+    the pinhole's, ``(I - w w^T) [[0, 0], [0, -p], [p, 0]] w_x / f`` (x right turns the
+    direction towards +Z, y down towards -Y): the distortion changes it by its gradient,
+    under 1e-3 of it, and so the weights by as little.
+
+    Parameters
+    ----------
+    camera : shipstar.camera.Camera
+    xy_px : ndarray, shape (N, 2)
+    cov_px2 : ndarray, shape (N, 2, 2)
+    shape : ndarray, shape (2, 2), optional
+    w_sensor : ndarray, shape (N, 3), optional
+        ``camera.unproject(xy_px)`` when already known.
+
+    Returns
+    -------
+    info_per_rad2 : ndarray, shape (N, 3, 3)
+        Sensor frame, rad^-2.
+    whiten_per_rad : ndarray, shape (N, 2, 3)
+        ``L^-1 J+``: a direction residual in units of the centroid's ``cov`` (without ``shape``).
+    """
+    w = camera.unproject(xy_px) if w_sensor is None else np.asarray(w_sensor, float)
+    k = camera.pixel_mm / camera.f_mm * w[:, 0]                      # rad per px along each axis
+    P = np.eye(3) - w[:, :, None] * w[:, None, :]
+    J = np.stack([P[:, :, 2] * k[:, None], -P[:, :, 1] * k[:, None]], axis=-1)   # (N, 3, 2)
+    Jt = np.swapaxes(J, 1, 2)
+    Jp = np.linalg.solve(Jt @ J, Jt)                                  # (N, 2, 3)
+    L = np.linalg.cholesky(np.asarray(cov_px2, float))
+    whiten = np.linalg.solve(L, Jp)
+    Si = np.eye(2) if shape is None else np.linalg.inv(np.asarray(shape, float))
+    # (L S L^T)^-1 = L^-T S^-1 L^-1: info = whiten^T S^-1 whiten
+    return np.swapaxes(whiten, 1, 2) @ Si @ whiten, whiten
 
 
 def _solve_hor(w_sensor, inputs: _SolveInputs, weather, options):
@@ -234,6 +283,7 @@ def _solve_hor(w_sensor, inputs: _SolveInputs, weather, options):
 
     return sensor_attitude_hor(w_sensor, inputs.v_true_hor, weather, model=options.refraction_model,
                                refraction=options.refraction, sigma_rad=inputs.sigma_rad, weights=inputs.weights,
+                               info_per_rad2=inputs.info_per_rad2,
                                reject_outliers=options.reject_outliers,
                                max_residual_arcsec=options.max_residual_arcsec)
 
@@ -317,14 +367,15 @@ class SensorProcessor:
 
     # -- steps ---------------------------------------------------------------------------
     def _measure(self, frame, t_s: float = math.nan, site=None):
-        """``(xy_px (N, 2), sigma_px (N,) or None)``: centroids of the frame, largest flux
-        first (elongated objects included: at sea every star is a streak); the Moon and the
+        """``(xy_px (N, 2), sigma_px (N,) or None, cov_px2 (N, 2, 2) or None)``: centroids of
+        the frame, largest flux first, their sigmas and covariances with the noise floor
+        added (elongated objects included: at sea every star is a streak); the Moon and the
         Sun masked, trails and persistent pixels dropped (``self.conditions``)."""
         from shipstar._fitsio import read_fits_image
         from shipstar.extract import extract_stars
 
         if frame.xy_px is not None:
-            return np.asarray(frame.xy_px, float), None
+            return np.asarray(frame.xy_px, float), None, None
         image = frame.image
         if image is None:
             image = read_fits_image(frame.path)      # the time was read by scan_frames
@@ -343,9 +394,13 @@ class SensorProcessor:
         order = rank_by_flux(ex.flux_adu)
         order = order[keep[order]]
         sig = ex.xy_sigma_px[order]
-        sig = np.where(np.isfinite(sig), sig, 1.0)
-        self._floor_used_px = self.conditions.floor_px()
-        return ex.xy_px[order], np.hypot(sig, self._floor_used_px)
+        known = np.isfinite(sig)
+        sig = np.where(known, sig, 1.0)
+        self._floor_used_px = f = self.conditions.floor_px()
+        cov = np.where(known[:, None, None], ex.xy_cov_px2[order], np.eye(2)) + f * f * np.eye(2)
+        if not np.all(np.isfinite(cov)):
+            cov = None
+        return ex.xy_px[order], np.hypot(sig, f), cov
 
     def _prior(self, t_s: float):
         """Predicted C_icrs_from_sensor at ``t_s`` from the last two solved frames (or None)."""
@@ -378,7 +433,7 @@ class SensorProcessor:
         u = idn.u_sensor if idn.focal_scale == 1.0 and idn.radial_k1 == 0.0 else None
         return np.asarray(idn.hip, np.int64), idn.mode, np.asarray(idn.C_icrs_from_sensor), u
 
-    def _horizontal(self, frame, xy, sigma_px, hip, u_sensor=None, site=None, weather=None):
+    def _horizontal(self, frame, xy, sigma_px, hip, u_sensor=None, site=None, weather=None, cov_px2=None):
         from shipstar.sky.apparent import frame_context
         from shipstar.sky.eop import earth_orientation
 
@@ -398,7 +453,10 @@ class SensorProcessor:
         scale = cam.pixel_mm / cam.f_mm
         sigma = None if opt.centroid_sigma_px is None else opt.centroid_sigma_px * scale
         weights = None if (sigma is not None or sigma_px is None) else sigma_px[rows] ** -2.0
-        inputs = _SolveInputs(v_true, sigma, weights)
+        info = whiten = None
+        if weights is not None and cov_px2 is not None:
+            info, whiten = direction_info(cam, xy[rows], cov_px2[rows], self.conditions.noise_shape.matrix(), w)
+        inputs = _SolveInputs(v_true, sigma, weights, info, whiten)
         return _solve_hor(w, inputs, weather, opt), site, weather, int(rows.size), inputs
 
     def _ship(self, h):
@@ -439,10 +497,11 @@ class SensorProcessor:
         n_det, n_id, mode, C_icrs = 0, 0, "", _NAN33.copy()
         measured = False
         try:
-            xy, sigma_px = self._measure(frame, t_s, site)
+            xy, sigma_px, cov_px2 = self._measure(frame, t_s, site)
             n_det, measured = len(xy), True
             hip, mode, C_icrs, u_sensor = self._identify(frame, xy, t_s)
-            h, site, weather, n_id, inputs = self._horizontal(frame, xy, sigma_px, hip, u_sensor, site, weather)
+            h, site, weather, n_id, inputs = self._horizontal(frame, xy, sigma_px, hip, u_sensor, site, weather,
+                                                              cov_px2)
         except ShipstarError as exc:
             reason = self._lost_reason(str(exc), frame, n_det, t_s) if measured else str(exc)
             return FrameResult(self.config.name, index, label, frame.utc_jd1, frame.utc_jd2, False, reason, mode,
