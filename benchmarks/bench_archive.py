@@ -10,12 +10,15 @@ at 10 frames/s, ``--duration-s`` long, default 90 s = 1800 frames, 3.8 GB; writt
 - ``shipstar measure --workers 2`` (the forked pool of ``measure``, for comparison),
 
 all with the same ``--chunk-s`` (default 30 s: 3 chunks per sensor, 6 tasks).  Each run is a
-separate command; printed per run are the wall time of the whole command and, for the
-archive runs, the processing time after the cluster is up (``--json``'s ``wall.process_s``:
-it still includes each worker's first load of the catalog and star database).  Then the
-medians over ``--repeat`` and the ratios: 2 against 1 archive workers (target >= 1.8x on
-this 2-core machine), serial measure against 2 archive workers, and whether every CSV
-is byte-identical to serial measure's (md5).
+separate command; printed per run are the wall time of the whole command, for the archive
+runs the processing time once the frames are indexed (``--json``'s ``wall.process_s``; the
+workers load the catalog and star databases while the frames are indexed), and the CPU
+time of the command with its worker processes (``getrusage`` of the children: the same
+CPU in every configuration means the difference in wall time is parallelism, not
+overhead).  Then the medians over ``--repeat`` and the ratios: 2 against 1 archive workers
+(target >= 1.8x on this 2-core machine), serial measure against 2 archive workers, and
+whether every CSV is byte-identical to serial measure's (md5; the code must not change
+while the benchmark runs).
 
 The host is shared: the load average is printed before and after; take the medians.
 

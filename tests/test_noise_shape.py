@@ -48,15 +48,17 @@ def test_noise_shape_recovers_the_error_covariance_of_whitened_residuals():
     rng = np.random.default_rng(5)
     S_true = np.array([[1.69, 0.25], [0.25, 0.81]])
     L = np.linalg.cholesky(S_true)
-    shape = NoiseShape(n_frames=40, min_stars=30)
-    assert shape.matrix() is None
+    shape = NoiseShape(window_s=4.0, min_stars=30)
+    assert shape.matrix(0.0) is None
     m = 30                                        # stars a frame
-    for _ in range(40):
+    for k in range(40):
         z = rng.standard_normal((m, 2)) @ L.T * np.sqrt(1 - 1.5 / m)   # residuals: 3 of 2m dof fitted
-        shape.add(z)
-    S = shape.matrix()
+        shape.add(z, 0.1 * k)
+    S = shape.matrix(4.0)
     # 1200 residuals: each element within ~4 standard errors
     assert np.allclose(S, S_true, atol=0.15)
     # a misidentified star far out is left out
-    shape.add(np.vstack([rng.standard_normal((m - 1, 2)) @ L.T, [[60.0, -40.0]]]))
-    assert np.allclose(shape.matrix(), S_true, atol=0.15)
+    shape.add(np.vstack([rng.standard_normal((m - 1, 2)) @ L.T, [[60.0, -40.0]]]), 4.0)
+    assert np.allclose(shape.matrix(4.05), S_true, atol=0.15)
+    # the window is in seconds: frames older than 4 s are forgotten
+    assert shape.matrix(100.0) is None

@@ -76,13 +76,17 @@ def test_installation_off_by_20_arcsec_marks_epochs_and_names_the_sensor(session
     assert proc.returncode == 1, proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in proc.stderr
-    assert "8 of 8 epochs inconsistent" in lines[0] and "A2 in 8" in lines[0], lines[0]
+    assert "8 of 8 epochs inconsistent" in lines[0] and "the sensor that does not fit" in lines[0], lines[0]
     summary = json.loads(proc.stdout)
-    assert summary["complete"] is True and summary["integrity"]["suspects"] == {"A2": 8}
+    # two sensors: the disagreement says that one is wrong, not which (docs/pipeline.md, *Which
+    # sensor*); every inconsistent epoch names one of them, and the line counts them
+    suspects = summary["integrity"]["suspects"]
+    assert summary["complete"] is True and set(suspects) <= {"A1", "A2"} and sum(suspects.values()) == 8
+    assert all(f"{k} in {v}" in lines[0] for k, v in suspects.items()), lines[0]
     rows = _rows(session / "off.csv")                           # the complete output is still written
     fused = [r for r in rows if r["method"] in ("joint", "seed-rule") and r["solved"] == "1"]
     assert len(fused) == 16
-    assert {r["integrity"] for r in fused} == {"inconsistent"} and {r["suspect_sensor"] for r in fused} == {"A2"}
+    assert {r["integrity"] for r in fused} == {"inconsistent"} and {r["suspect_sensor"] for r in fused} <= {"A1", "A2"}
     assert all(float(r["integrity_chi2"]) > 30.66 for r in fused)
 
 

@@ -331,7 +331,8 @@ def run(args) -> int:
     from shipstar.cli._model_inputs import print_measure_uncertainty
     import dask
 
-    from shipstar.pipeline._archive import QUIET_DASK, connect
+    from shipstar.cli._cmd_measure import _configs
+    from shipstar.pipeline._archive import QUIET_DASK, connect, warm_workers
     from shipstar.pipeline._measure import default_workers
     from shipstar.pipeline._progress import ProgressBar
 
@@ -341,23 +342,28 @@ def run(args) -> int:
     sessions = _sessions(args)
     for s in sessions:
         _plan_output(s)
-    for s in sessions:
-        if not s.skipped:
-            _prepare(s)
-            print_overrides("measure-archive", s.overrides)
     n_workers = args.workers or default_workers()
     bar = ProgressBar(True if args.progress else None)
     dask.config.set(QUIET_DASK)                     # this process's part (the LocalCluster's: connect)
     client = cluster = None
     timing = {"connect_s": 0.0, "process_s": 0.0}
     try:
+        todo = [s for s in sessions if not s.skipped]
+        if todo:                                    # the cluster first: its workers load the catalog and
+            t0 = time.perf_counter()                # star databases while the frames are indexed here
+            client, cluster = connect(args.scheduler, workers=n_workers, timeout_s=args.connect_timeout_s)
+            timing["connect_s"] = time.perf_counter() - t0
+            warming = warm_workers(client, [c.camera for c in _configs(todo[0].args)])
+        for s in todo:
+            _prepare(s)
+            print_overrides("measure-archive", s.overrides)
         with StopOnSignals() as stop:
             if any(s.job is not None and not s.swapped for s in sessions):
-                t0 = time.perf_counter()
-                client, cluster = connect(args.scheduler, workers=n_workers, timeout_s=args.connect_timeout_s)
                 t1 = time.perf_counter()
                 _process_all(sessions, client, args, stop, bar)
-                timing = {"connect_s": t1 - t0, "process_s": time.perf_counter() - t1}
+                timing["process_s"] = time.perf_counter() - t1
+        if todo:
+            del warming
     finally:
         bar.close()
         if client is not None:

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 from shipstar.errors import ShipstarError
 
 __all__ = ["ChunkFailed", "DaskTasks", "EVENT_TOPIC", "attempts_report", "connect", "describe_chunk",
-           "run_archive", "ArchiveOutcome", "DEFAULT_RETRIES", "DEFAULT_RETRY_DELAY_S"]
+           "run_archive", "ArchiveOutcome", "DEFAULT_RETRIES", "DEFAULT_RETRY_DELAY_S", "warm_workers"]
 
 #: The scheduler's event topic of every attempt (``client.get_events(EVENT_TOPIC)``).
 EVENT_TOPIC = "shipstar-archive"
@@ -140,6 +140,26 @@ def _chunk_task(job, sensor: int, piece, lo: int, keep_from: int, run_id: str, k
         time.sleep(retry_delay_s)
         raise
     return items
+
+
+def _warm(cameras) -> None:
+    """Load the catalog and each camera's star database into this worker (cached per process)."""
+    from shipstar.pipeline._sensor import _database_for
+    from shipstar.pipeline._stars import default_lookup
+
+    default_lookup()
+    for camera in cameras:
+        _database_for(camera)
+
+
+def warm_workers(client, cameras) -> list:
+    """Start loading the catalog and the cameras' star databases on every worker now (as
+    ``measure``'s worker pool does while the frames are indexed); returns the futures, to
+    keep until the run ends (a released future is cancelled).  A worker that joins later
+    loads them with its first task."""
+    return [client.submit(_warm, tuple(cameras), key=f"shipstar-warm-{uuid.uuid4().hex[:12]}", workers=[addr],
+                          allow_other_workers=False, pure=False)
+            for addr in client.scheduler_info()["workers"]]
 
 
 # -- on the client ---------------------------------------------------------------------------

@@ -51,6 +51,8 @@ _LN2x2 = 2.0 * math.log(2.0)          # median of chi-square with 2 degrees of f
 #: Whitened residuals (in units of their predicted sigma) beyond this are not used by
 #: :class:`NoiseShape` (chi-square with 2 dof exceeds 4.5^2 with probability 4e-5).
 SHAPE_CLIP = 4.5
+#: Seconds of solved frames whose residuals give the noise shape (20 frames at 10 frames/s).
+SHAPE_WINDOW_S = 2.0
 
 
 def expected_stars(database, camera, C_icrs_from_sensor=None) -> float:
@@ -133,35 +135,46 @@ class NoiseShape:
     Each solved frame adds its inlier stars' residuals whitened by the covariance they were
     predicted with, ``z_i = L_i^-1 e_i`` (``L_i L_i^T`` = the extraction's covariance with
     the floor, ``e_i`` the residual in px), scaled by ``1 / sqrt(1 - 1.5 / m)`` for the
-    fit's 3 degrees of freedom among ``2 m``.  ``S = mean(z z^T)`` over the last frames;
-    the next frame's covariances are ``L_i S L_i^T``.  Whitened residuals beyond
-    :data:`SHAPE_CLIP` (a misidentified or blended star) are left out.
+    fit's 3 degrees of freedom among ``2 m``.  ``S = mean(z z^T)`` over the frames of the
+    last :data:`SHAPE_WINDOW_S` seconds; the next frame's covariances are ``L_i S L_i^T``.
+    Whitened residuals beyond :data:`SHAPE_CLIP` (a misidentified or blended star) are left
+    out.  The window is in seconds, not frames, so that a chunk's warm-up
+    (``pipeline._measure.WARMUP_S``) covers it at any frame rate.
     """
 
-    def __init__(self, n_frames: int = FLOOR_FRAMES, min_stars: int = FLOOR_MIN_STARS):
-        self._frames: deque = deque(maxlen=int(n_frames))
+    def __init__(self, window_s: float = None, min_stars: int = FLOOR_MIN_STARS):
+        self.window_s = SHAPE_WINDOW_S if window_s is None else float(window_s)
+        self._frames: deque = deque()
         self.min_stars = int(min_stars)
         self._cache = None
 
-    def add(self, z) -> None:
-        """Add one frame's whitened residuals ``z`` (M, 2)."""
+    def _prune(self, t_s: float) -> None:
+        while self._frames and self._frames[0][0] < t_s - self.window_s:
+            self._frames.popleft()
+            self._cache = None
+
+    def add(self, z, t_s: float) -> None:
+        """Add the whitened residuals ``z`` (M, 2) of the frame at ``t_s`` (s)."""
         z = np.asarray(z, float).reshape(-1, 2)
         m = len(z)
         if m < 3:
             return
         z = z[np.all(np.isfinite(z), axis=1)]
         z = z[np.hypot(z[:, 0], z[:, 1]) < SHAPE_CLIP] / math.sqrt(1.0 - 1.5 / m)
-        self._frames.append((np.einsum("ni,nj->ij", z, z), len(z)))
+        self._prune(t_s)
+        self._frames.append((float(t_s), np.einsum("ni,nj->ij", z, z), len(z)))
         self._cache = None
 
-    def matrix(self):
-        """``S`` (2, 2), or None with fewer than ``min_stars`` residuals."""
+    def matrix(self, t_s: float):
+        """``S`` (2, 2) for a frame at ``t_s`` (from the frames after ``t_s - window_s``),
+        or None with fewer than ``min_stars`` residuals there."""
+        self._prune(t_s)
         if self._cache is not None:
             return self._cache
-        n = sum(k for _, k in self._frames)
+        n = sum(k for _, _, k in self._frames)
         if n < self.min_stars:
             return None
-        self._cache = sum(zz for zz, _ in self._frames) / n
+        self._cache = sum(zz for _, zz, _ in self._frames) / n
         return self._cache
 
 
@@ -227,8 +240,15 @@ class ConditionMonitor:
             return CLOUDED_REASON
         return reason
 
-    def add_solved(self, fr, floor_used_px: float) -> None:
-        """Feed a solved frame's inlier residuals to the noise-floor estimate."""
+    def add_solved(self, fr, floor_used_px: float, first=None, t_s: float = math.nan) -> None:
+        """Feed a solved frame's inlier residuals to the noise-floor and noise-shape estimates.
+
+        ``first`` (:class:`~shipstar.attitude.HorizontalAttitude`): the frame's first solve,
+        before the streak correction.  The shape's residuals are those of the QUEST solution
+        of its inliers with the scalar weights: a solution that the shape itself did not
+        weight, so that the shape depends on the last :data:`SHAPE_WINDOW_S` seconds only (a
+        chunk's warm-up rebuilds it, ``pipeline._measure.WARMUP_S``), not on every earlier one
+        through the weights it gave them."""
         h, inputs = fr.horizontal, fr.solve_inputs
         if inputs is None or inputs.weights is None or not fr.solved:
             return
@@ -239,9 +259,15 @@ class ConditionMonitor:
         cr2 = 1.0 / np.asarray(inputs.weights, float)[keep] - floor_used_px ** 2
         good = cr2 < 0.98                                  # unknown Cramer-Rao sigma (1 px): not used
         self.noise_floor.add(r_px[good] ** 2, np.maximum(cr2[good], 0.0))
-        if inputs.whiten_per_rad is not None:
-            e = h.v_hor[keep] @ np.asarray(h.C_hor_from_sensor) - h.w_sensor[keep]      # C^T v - w, sensor frame
-            self.noise_shape.add(np.einsum("nij,nj->ni", inputs.whiten_per_rad[keep][good], e[good]))
+        if inputs.whiten_per_rad is not None and first is not None and first.solved:
+            from shipstar.attitude import quest
+
+            k1 = np.asarray(first.inliers)
+            w, v = first.w_sensor[k1], first.v_hor[k1]
+            C0 = quest(w, v, np.asarray(inputs.weights, float)[k1])
+            e = v @ C0 - w                                   # C^T v - w, sensor frame
+            good1 = 1.0 / np.asarray(inputs.weights, float)[k1] - floor_used_px ** 2 < 0.98
+            self.noise_shape.add(np.einsum("nij,nj->ni", inputs.whiten_per_rad[k1][good1], e[good1]), t_s)
 
 
     def _displacement_px(self, C_then, C_now, xy_px) -> np.ndarray:

@@ -41,8 +41,10 @@ __all__ = ["CHUNK_S", "WARMUP_S", "ENGINE_WARMUP_S", "MeasureJob", "MeasureOutco
 #: Length of a processing chunk (s).
 CHUNK_S = 60.0
 #: Frames processed before a chunk to rebuild a sensor's state (s): the engine's warm-up,
-#: plus the streak correction's motion window for those frames, plus a second for tracking.
-WARMUP_S = 2.6
+#: plus the streak correction's motion window for those frames, plus a second for tracking,
+#: plus the noise shape's window (``_conditions.SHAPE_WINDOW_S``) that weights the attitudes
+#: the motion window holds.
+WARMUP_S = 4.6
 #: The engine's state (pairing, the deck's motion window) rebuilt on resume from this many
 #: seconds of results before the resume point.
 ENGINE_WARMUP_S = 1.3

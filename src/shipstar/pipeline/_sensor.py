@@ -433,7 +433,8 @@ class SensorProcessor:
         u = idn.u_sensor if idn.focal_scale == 1.0 and idn.radial_k1 == 0.0 else None
         return np.asarray(idn.hip, np.int64), idn.mode, np.asarray(idn.C_icrs_from_sensor), u
 
-    def _horizontal(self, frame, xy, sigma_px, hip, u_sensor=None, site=None, weather=None, cov_px2=None):
+    def _horizontal(self, frame, xy, sigma_px, hip, u_sensor=None, site=None, weather=None, cov_px2=None,
+                    shape=None):
         from shipstar.sky.apparent import frame_context
         from shipstar.sky.eop import earth_orientation
 
@@ -455,7 +456,7 @@ class SensorProcessor:
         weights = None if (sigma is not None or sigma_px is None) else sigma_px[rows] ** -2.0
         info = whiten = None
         if weights is not None and cov_px2 is not None:
-            info, whiten = direction_info(cam, xy[rows], cov_px2[rows], self.conditions.noise_shape.matrix(), w)
+            info, whiten = direction_info(cam, xy[rows], cov_px2[rows], shape, w)
         inputs = _SolveInputs(v_true, sigma, weights, info, whiten)
         return _solve_hor(w, inputs, weather, opt), site, weather, int(rows.size), inputs
 
@@ -500,8 +501,9 @@ class SensorProcessor:
             xy, sigma_px, cov_px2 = self._measure(frame, t_s, site)
             n_det, measured = len(xy), True
             hip, mode, C_icrs, u_sensor = self._identify(frame, xy, t_s)
+            shape = self.conditions.noise_shape.matrix(t_s) if math.isfinite(t_s) else None
             h, site, weather, n_id, inputs = self._horizontal(frame, xy, sigma_px, hip, u_sensor, site, weather,
-                                                              cov_px2)
+                                                              cov_px2, shape)
         except ShipstarError as exc:
             reason = self._lost_reason(str(exc), frame, n_det, t_s) if measured else str(exc)
             return FrameResult(self.config.name, index, label, frame.utc_jd1, frame.utc_jd2, False, reason, mode,
@@ -513,7 +515,7 @@ class SensorProcessor:
         if self._motion is not None and fr.solved:
             fr = self._streaks(fr, t_s, extracted=frame.xy_px is None)
         if fr.solved:
-            self.conditions.add_solved(fr, self._floor_used_px)
+            self.conditions.add_solved(fr, self._floor_used_px, h, t_s)
             fr = replace(fr, noise_floor_arcsec=self.noise_floor_arcsec)
         else:
             reason = self._lost_reason(fr.reason, frame, n_det, t_s)
