@@ -155,3 +155,15 @@ def test_bad_information_matrices_are_refused():
     bad[0, 0, 0] = np.nan
     with pytest.raises(ShipstarError, match="info_per_rad2"):
         solve_attitude(w, w, info_per_rad2=bad)
+
+
+def test_information_without_an_axis_falls_back_to_the_scalar_solution():
+    rng = np.random.default_rng(4)
+    C = C_icrs_from_sensor(0.7, 0.1, 0.3)
+    w = _field(rng, 6)
+    sig = np.full(len(w), 1.0 * ASEC2RAD)
+    info = np.zeros((len(w), 3, 3))               # no information at all: nothing to refine with
+    a = solve_attitude(w, w @ C.T, sigma_rad=sig, info_per_rad2=info)
+    s = solve_attitude(w, w @ C.T, sigma_rad=sig)
+    assert a.solved and a.info_per_rad2 is None
+    assert np.allclose(a.C_ref_from_body, s.C_ref_from_body) and np.allclose(a.covariance_rad2, s.covariance_rad2)

@@ -321,7 +321,9 @@ def solve_attitude(w_body, v_ref, *, weights=None, sigma_rad=None, method="quest
                 f"fewer than {min_vectors} vectors"), r * RAD2ASEC)
         active[worst] = False
     if info is not None:
-        return _solution_anisotropic(C, w, v, active, a, sigma, info)
+        sol = _solution_anisotropic(C, w, v, active, a, sigma, info)
+        if sol is not None:
+            return sol
     return _solution(C, r, active, a, sigma, w, weights is not None)
 
 
@@ -356,15 +358,16 @@ def _solution(C, r, active, a, sigma, w, weights_given):
 
 def _solution_anisotropic(C, w, v, active, a, sigma, info):
     """The inliers' solution refined with per-direction information matrices, its
-    covariance from them (see :func:`solve_attitude`)."""
+    covariance from them (see :func:`solve_attitude`); None when those matrices give no
+    attitude information about some axis (the scalar solution is then returned)."""
     m = int(active.sum())
     W = info[active]
     try:
         F = _fisher_body(w[active], W)
         P = sym3_inverse(F)
         C = _refine_anisotropic(C, w[active], v[active], W, F)
-    except (ShipstarError, np.linalg.LinAlgError) as exc:
-        return _failed(len(w), f"degenerate geometry: {exc}")
+    except (ShipstarError, np.linalg.LinAlgError):
+        return None
     r = residuals_rad(C, w, v)
     scale = 1.0
     if sigma is None:

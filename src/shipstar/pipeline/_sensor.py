@@ -397,9 +397,13 @@ class SensorProcessor:
         known = np.isfinite(sig)
         sig = np.where(known, sig, 1.0)
         self._floor_used_px = f = self.conditions.floor_px()
-        cov = np.where(known[:, None, None], ex.xy_cov_px2[order], np.eye(2)) + f * f * np.eye(2)
-        if not np.all(np.isfinite(cov)):
-            cov = None
+        cov = np.where(known[:, None, None], ex.xy_cov_px2[order], np.eye(2))
+        # a covariance that is not positive definite (or not finite) is replaced by the star's
+        # scalar sigma, isotropic: the anisotropic weights never stop a frame from solving
+        a, b, c = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
+        with np.errstate(invalid="ignore"):
+            pd = np.isfinite(a) & np.isfinite(b) & np.isfinite(c) & (a > 0) & (c > 0) & (a * c - b * b > 0)
+        cov = np.where(pd[:, None, None], cov, sig[:, None, None] ** 2 * np.eye(2)) + f * f * np.eye(2)
         return ex.xy_px[order], np.hypot(sig, f), cov
 
     def _prior(self, t_s: float):
