@@ -112,6 +112,24 @@ WEATHER_HELPS = {
 }
 
 
+def add_processing_arguments(p):
+    """The ``processing`` group that ``measure`` and ``measure-archive`` share (refraction,
+    frame times, pairing, motion compensation, streak correction); returns the group."""
+    o = p.add_argument_group("processing")
+    add_refraction_arguments(o, "refraction model (default erfa; almanac = the seeds')",
+                             "per-star (default) or the seed's boresight-only refraction")
+    add_date_obs_is_argument(o)
+    add_trust_flags_argument(o)
+    o.add_argument("--reference", metavar="NAME", help="sensor whose frame times are the epochs (default first)")
+    o.add_argument("--max-pair-offset-s", type=_non_negative, default=0.06,
+                   help="largest time offset of paired frames (s, default 0.06)")
+    o.add_argument("--no-motion-compensation", action="store_true",
+                   help="do not carry paired frames to the epoch time (for comparison)")
+    o.add_argument("--no-streak-correction", action="store_true",
+                   help="do not turn streak centroids (exposure averages) to mid-exposure directions (for comparison)")
+    return o
+
+
 def register(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "measure", help="ship heading, pitch and roll from star sensor frames",
@@ -131,18 +149,7 @@ def register(subparsers) -> argparse.ArgumentParser:
     add_weather_arguments(w, WEATHER_HELPS)
     w.add_argument("--weather", metavar="CSV", help="time_utc, pressure_hpa, temperature_c[, relative_humidity]")
     add_model_input_arguments(p, dock=False)     # --eop, input sigmas, humidity "not given" (docs/uncertainty.md)
-    o = p.add_argument_group("processing")
-    add_refraction_arguments(o, "refraction model (default erfa; almanac = the seeds')",
-                             "per-star (default) or the seed's boresight-only refraction")
-    add_date_obs_is_argument(o)
-    add_trust_flags_argument(o)
-    o.add_argument("--reference", metavar="NAME", help="sensor whose frame times are the epochs (default first)")
-    o.add_argument("--max-pair-offset-s", type=_non_negative, default=0.06,
-                   help="largest time offset of paired frames (s, default 0.06)")
-    o.add_argument("--no-motion-compensation", action="store_true",
-                   help="do not carry paired frames to the epoch time (for comparison)")
-    o.add_argument("--no-streak-correction", action="store_true",
-                   help="do not turn streak centroids (exposure averages) to mid-exposure directions (for comparison)")
+    o = add_processing_arguments(p)
     r = p.add_argument_group("output")
     r.add_argument("--out", required=True, metavar="CSV", help="attitude CSV to write")
     r.add_argument("--plots", metavar="DIR", help="write attitude.png and residuals.png here")

@@ -7,8 +7,6 @@ import sys
 
 from shipstar.cli._common import (
     accuracy_warnings,
-    add_date_obs_is_argument,
-    add_refraction_arguments,
     add_site_arguments,
     add_weather_arguments,
     check_output_dir,
@@ -70,8 +68,7 @@ def _name_value(text: str):
 
 
 def register(subparsers) -> argparse.ArgumentParser:
-    from shipstar.cli._cmd_measure import SITE_HELPS, WEATHER_HELPS
-    from shipstar.cli._header_checks import add_trust_flags_argument
+    from shipstar.cli._cmd_measure import SITE_HELPS, WEATHER_HELPS, add_processing_arguments
     from shipstar.cli._model_inputs import add_model_input_arguments
 
     p = subparsers.add_parser(
@@ -98,18 +95,7 @@ def register(subparsers) -> argparse.ArgumentParser:
     add_weather_arguments(w, WEATHER_HELPS)
     w.add_argument("--weather", metavar="CSV", help="time_utc, pressure_hpa, temperature_c[, relative_humidity]")
     add_model_input_arguments(p, dock=False)
-    o = p.add_argument_group("processing")
-    add_refraction_arguments(o, "refraction model (default erfa; almanac = the seeds')",
-                             "per-star (default) or the seed's boresight-only refraction")
-    add_date_obs_is_argument(o)
-    add_trust_flags_argument(o)
-    o.add_argument("--reference", metavar="NAME", help="sensor whose frame times are the epochs (default first)")
-    o.add_argument("--max-pair-offset-s", type=float_in_range(0.0), default=0.06,
-                   help="largest time offset of paired frames (s, default 0.06)")
-    o.add_argument("--no-motion-compensation", action="store_true",
-                   help="do not carry paired frames to the epoch time (for comparison)")
-    o.add_argument("--no-streak-correction", action="store_true",
-                   help="do not turn streak centroids (exposure averages) to mid-exposure directions (for comparison)")
+    o = add_processing_arguments(p)
     o.add_argument("--chunk-s", type=float_in_range(1e-3, 86400.0), default=60.0, metavar="S",
                    help="processing chunk (s, default 60): each sensor's chunk is one Dask task")
     d = p.add_argument_group("Dask")

@@ -22,7 +22,7 @@ One :class:`ConditionMonitor` per :class:`~shipstar.pipeline._sensor.SensorProce
   floor), from the same frames.  A star smeared by less than a streak (about 3 px: the
   extraction fits it as a point) is less certain along its smear than its point
   covariance says and more certain across; so are streaks whose model is imperfect.
-""" 
+"""
 
 from __future__ import annotations
 
@@ -30,6 +30,8 @@ import math
 from collections import deque
 
 import numpy as np
+
+from shipstar.extract._background import median
 
 __all__ = ["ConditionMonitor", "NoiseFloor", "NoiseShape", "expected_stars", "CLOUDED_REASON", "MOON_REASON", "SUN_REASON",
            "CLOUDED_FRACTION", "ENVIRONMENT_REASONS"]
@@ -103,29 +105,18 @@ class NoiseFloor:
             return math.nan
         r2 = np.concatenate([r for r, _ in self._frames])
         cr2 = np.concatenate([c for _, c in self._frames])
-        if _median(r2 / np.maximum(cr2, 1e-12)) <= _LN2x2:
+        if median(r2 / np.maximum(cr2, 1e-12)) <= _LN2x2:
             self._cache = 0.0
             return 0.0
         lo, hi = 0.0, float(np.max(r2))
         for _ in range(40):
             mid = 0.5 * (lo + hi)
-            if _median(r2 / (cr2 + mid)) > _LN2x2:
+            if median(r2 / (cr2 + mid)) > _LN2x2:
                 lo = mid
             else:
                 hi = mid
         self._cache = math.sqrt(0.5 * (lo + hi))
         return self._cache
-
-
-def _median(x) -> float:
-    """``np.median`` of a 1-D array without NaN (the same value: the middle element, or the mean
-    of the two middle ones), at a fifth of its cost: the bisection above takes 40 a frame."""
-    n = x.size
-    k = n // 2
-    if n % 2:
-        return float(np.partition(x, k)[k])
-    part = np.partition(x, (k - 1, k))
-    return float((part[k - 1] + part[k]) / 2.0)
 
 
 class NoiseShape:
