@@ -25,9 +25,10 @@ import numpy as np
 
 from shipstar.errors import ShipstarError
 from shipstar.identify._database import DatabaseParams, StarDatabase, cached_database, params_for_field
+from shipstar.identify._field import _check_error, _check_tolerance, pinhole_input
 from shipstar.identify._result import Identification, failed_identification
 from shipstar.identify._solve import SolveResult, solve_centroids, solve_image
-from shipstar.identify._tracking import tracking
+from shipstar.identify._tracking import tracking, tracking_pinhole
 from shipstar.units import DEG2RAD
 
 __all__ = ["StarDatabase", "DatabaseParams", "Identification", "SolveResult", "build_database",
@@ -143,6 +144,18 @@ def _make_field(stars, database, camera, fov_deg, image_shape_hw, centroid_error
                                      error_px=centroid_error_px, focal_tolerance=focal_tolerance)
 
 
+def _pinhole_input(stars, database, camera, centroid_error_px):
+    """``(xy_px, cam, error_rad, bounds)`` for the compiled one-call paths
+    (:func:`._field.pinhole_input`), or None: the general path."""
+    if camera is None or not isinstance(database, StarDatabase):
+        return None
+    fast = pinhole_input(stars, camera)
+    if fast is None:
+        return None
+    xy, cam, bounds = fast
+    return xy, cam, _check_error(centroid_error_px, "centroid_error_px") * cam[2] / cam[3], bounds
+
+
 def _checked_rotation(matrix, name: str) -> np.ndarray:
     """``matrix`` as a float (3, 3) array if it is a finite proper rotation.
 
@@ -216,14 +229,21 @@ def identify_lost_in_space(stars, database: StarDatabase, *, camera=None, fov_de
     max_time_s : float
         Give up (``solved=False``) after this time.
     """
-    field = _make_field(stars, database, camera, fov_deg, image_shape_hw, centroid_error_px,
-                        focal_tolerance)
-    from shipstar.identify._lost_in_space import LisOptions, lost_in_space
+    from shipstar.identify._lost_in_space import LisOptions, lost_in_space, lost_in_space_pinhole
 
     opts = LisOptions(p_false_max=_check_probability(p_false_max),
                       max_pattern_stars=max(4, int(max_pattern_stars)),
                       max_verify_stars=max(4, int(max_verify_stars)),
                       max_time_s=float(max_time_s))
+    fast = _pinhole_input(stars, database, camera, centroid_error_px)
+    if fast is not None:
+        xy, cam, error_rad, bounds = fast
+        result = lost_in_space_pinhole(xy, cam, error_rad, _check_tolerance(focal_tolerance), bounds,
+                                       database, opts)
+        if result is not None:
+            return result
+    field = _make_field(stars, database, camera, fov_deg, image_shape_hw, centroid_error_px,
+                        focal_tolerance)
     bad = _bad_rows_result(field, "lost_in_space")
     if bad is not None:
         return bad
@@ -260,19 +280,28 @@ def identify_tracking(stars, database: StarDatabase, C_icrs_from_sensor_prior, *
     fs = float(focal_scale)
     if not math.isfinite(fs) or not 0.5 <= fs <= 2.0:
         raise ShipstarError(f"focal_scale must be within 0.5 .. 2, got {focal_scale}")
-    field = _make_field(stars, database, camera, lost_in_space_options.get("fov_deg"),
-                        lost_in_space_options.get("image_shape_hw"), centroid_error_px, 0.0)
-    if field.bad_rows.size:
-        return _bad_rows_result(field, "tracking")
-    result = tracking(field, database, C, prior_error_rad=err * DEG2RAD, focal_scale=fs,
-                      p_false_max=_check_probability(p_false_max), min_matches=max(2, int(min_matches)))
+    p_false = _check_probability(p_false_max)
+    result = None
+    fast = _pinhole_input(stars, database, camera, centroid_error_px) if fs == 1.0 else None
+    if fast is not None:
+        xy, cam, error_rad, bounds = fast
+        result = tracking_pinhole(xy, cam, error_rad, bounds, database, C,
+                                  prior_error_rad=err * DEG2RAD, p_false_max=p_false,
+                                  min_matches=max(2, int(min_matches)))
+    if result is None:
+        field = _make_field(stars, database, camera, lost_in_space_options.get("fov_deg"),
+                            lost_in_space_options.get("image_shape_hw"), centroid_error_px, 0.0)
+        if field.bad_rows.size:
+            return _bad_rows_result(field, "tracking")
+        result = tracking(field, database, C, prior_error_rad=err * DEG2RAD, focal_scale=fs,
+                          p_false_max=p_false, min_matches=max(2, int(min_matches)))
     if result.solved or not fallback:
         return result
     lis = identify_lost_in_space(stars, database, camera=camera, centroid_error_px=centroid_error_px,
                                  p_false_max=p_false_max, **lost_in_space_options)
     if lis.solved:
         return lis
-    return failed_identification(field.n, "lost_in_space",
+    return failed_identification(len(result.star_index), "lost_in_space",
                                  f"tracking: {result.reason}; lost-in-space: {lis.reason}",
                                  n_patterns=lis.n_patterns, n_candidates=lis.n_candidates + 1,
                                  time_s=result.time_s + lis.time_s)

@@ -11,6 +11,8 @@
  *             docs/identification.md give the rules; this is the same computation).
  * track_solve: tracking from a prior attitude (_tracking.py's docstring: prediction,
  *             common shift, shifted pairs, fit and fine gate, vote).
+ * lis_pinhole / track_pinhole: the same from pixel centroids of a camera without
+ *             distortion, unprojection and result arrays included (one call per frame).
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -209,6 +211,49 @@ static double min_chance(const double *factors, const long *n, const long *k, co
         if (v < best) best = v;
     }
     return best;
+}
+
+/* ---------------------------------------------------------------------------------
+ * Scatter screen: a pair far outside the frame's own centroid scatter is not matched
+ * ------------------------------------------------------------------------------- */
+
+/* The fine gate is set by the centroid-error *bound*; a frame's real scatter is often
+ * several times smaller.  A detection that is not the catalog star (a false star where
+ * the star itself was not detected) can then fall inside the fine gate but far outside
+ * the scatter of the other pairs.  With r2_q the upper-quartile squared residual of the
+ * k pairs, a pair with d2 > SCREEN_FACTOR r2_q is not matched.  For Gaussian centroid
+ * errors (r^2 / 2 sigma^2 ~ Exp(1), r2_q = 2 sigma^2 ln 4) that is r > 7.4 sigma, a
+ * chance of 1e-12 for a true pair; real frames have heavier tails (faint stars, blends:
+ * the rendered sessions of tests/golden reach 10.2 r2_q), hence 20, which still drops
+ * a false star 1.2 px from a missing star's place among pairs of 0.2 px scatter
+ * (bench_identify's seed004 stream, 34 r2_q).  The upper quartile, not the median, so
+ * that the noisier (fainter) stars of a frame set the scale.  Only with
+ * SCREEN_MIN_PAIRS pairs or more, never below (gate / 8)^2 (the smallest gate of the
+ * chance model), so never more than a quarter of the pairs. */
+#define SCREEN_MIN_PAIRS 8
+#define SCREEN_FACTOR 20.0
+
+static int cmp_d(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return x < y ? -1 : (x > y);
+}
+
+/* pairs (img, cat, d2) kept in place; returns their number (k when none is dropped).
+ * scratch: k doubles. */
+static long scatter_screen(long *img, long *cat, double *d2, long k, double gate, double *scratch)
+{
+    if (k < SCREEN_MIN_PAIRS) return k;
+    memcpy(scratch, d2, k * sizeof(double));
+    qsort(scratch, k, sizeof(double), cmp_d);
+    double lim = SCREEN_FACTOR * scratch[(3 * (k - 1)) / 4];
+    double floor2 = 0.015625 * gate * gate;
+    if (lim < floor2) lim = floor2;
+    if (!(scratch[k - 1] > lim)) return k;
+    long out = 0;
+    for (long i = 0; i < k; i++)
+        if (d2[i] <= lim) { img[out] = img[i]; cat[out] = cat[i]; d2[out] = d2[i]; out++; }
+    return out;
 }
 
 /* ---------------------------------------------------------------------------------
@@ -684,6 +729,21 @@ static int lis_verify(Lis *L, const Db *db, const long *img4, const long *cat4, 
         if (settled || attempt == 3) break;
         refine(L, db, L->img, L->cat, m, &s, &k1, L->fit, radial, C);
     }
+    long m3 = scatter_screen(L->img, L->cat, L->d2b, m, L->gate_fine, L->d2);
+    if (m3 < m) {                                           /* refit without the outliers */
+        m = m3;
+        refine(L, db, L->img, L->cat, m, &s, &k1, L->fit, radial, C);
+        for (long i = 0; i < m; i++) {
+            const double *v = db->u64 + 3 * L->cat[i];
+            double w0 = v[0] * C[0] + v[1] * C[3] + v[2] * C[6];
+            double w1 = v[0] * C[1] + v[1] * C[4] + v[2] * C[7];
+            double w2 = v[0] * C[2] + v[1] * C[5] + v[2] * C[8];
+            double a = L->t[2 * L->img[i]], b = L->t[2 * L->img[i] + 1], f = s;
+            if (k1 != 0.0) f = s * (1.0 + k1 * (a * a + b * b));
+            double dy = a * f - w1 / w0, dz = b * f - w2 / w0;
+            L->d2b[i] = dy * dy + dz * dz;
+        }
+    }
     double p = lis_p_false(L, L->img, L->d2b, m, img4, L->pred.n_in, s);
     if (p > L->p_false_max) return 0;
     memcpy(L->C, C, sizeof C);
@@ -770,8 +830,13 @@ static int pattern_candidates(Lis *L, const Db *db, long owner, const double *e6
     long hits[512];
     int n_hit = 0, more = 0;
     for (int i = 0; i < n_probe && !more; i++) {
-        for (long row = db->key_hi_start[his[i]]; row < db->key_hi_start[his[i] + 1]; row++) {
-            if (db->key_lo[row] != los[i]) continue;
+        /* a bucket's rows are sorted by key_lo (the database is sorted by the whole key,
+         * checked in _kernels.py): the rows below los[i] are counted without a branch,
+         * then the equal ones are read in order (the same rows as a scan for equality) */
+        long a = db->key_hi_start[his[i]], e = db->key_hi_start[his[i] + 1], row = a;
+        uint16_t lo = los[i];
+        for (long r = a; r < e; r++) row += db->key_lo[r] < lo;
+        for (; row < e && db->key_lo[row] == lo; row++) {
             if (n_hit == 512) { more = 1; break; }
             hits[n_hit++] = row;
             __builtin_prefetch(db->pstars + 4 * row);
@@ -910,7 +975,7 @@ static int scatter_rows(const int64_t *img, const int64_t *cat, long k, const Py
     return 1;
 }
 
-#define NBUF 12
+#define NBUF 8                  /* the database arrays of a search */
 
 static void release_all(Py_buffer *b, int n)
 {
@@ -918,82 +983,190 @@ static void release_all(Py_buffer *b, int n)
         if (b[i].obj) PyBuffer_Release(&b[i]);
 }
 
-/* lis_solve(t, u0, combos, ends, u64, u32, pstars, key_lo, key_hi_start, cell_start,
- *           cell_index, cell_u, iparams, dparams, out_C, out_img, out_cat)
- * iparams (int64): k, grid_n, key_bits, lo_bits, bins, db_n_patterns, min_matches,
- *                  max_candidates, fit, fit_radial, largest cell
- * dparams (float64): e_edge, max_edge, min_edge, model_tol, ftol, error_rad, half_diag,
- *                    gate_fine, area0, p_false_max, max_time_s, bounds[4]
- * returns (status, n_match, n_verified, n_patterns, s, k1, p_false, rms_arcsec) */
-static PyObject *py_lis_solve(PyObject *self, PyObject *args)
+/* The search over the usable stars t (n, 2), u0 (n, 3) with the parameters of
+ * lis_solve; 1 solved (L->C, L->img / L->cat [0, L->n_match), ...), 0 / 2 not, -1 no
+ * memory.  L is zeroed here and must be released with lis_free. */
+static int lis_core(Lis *L, const Db *db, const double *t, const double *u0, long n,
+                    const int64_t *I, const double *D, const int64_t *combos, const int64_t *ends,
+                    long n_ends)
 {
-    Py_buffer b[NBUF + 2], ip, dp, oc, oi, ocat;
-    memset(b, 0, sizeof b);
-    memset(&ip, 0, sizeof ip); memset(&dp, 0, sizeof dp);
-    memset(&oc, 0, sizeof oc); memset(&oi, 0, sizeof oi); memset(&ocat, 0, sizeof ocat);
-    Py_buffer bus, bh, ostar, ohip;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*y*y*y*y*y*w*w*w*y*y*w*w*", &b[0], &b[1], &b[2],
-                          &b[3], &b[4], &b[5], &b[6], &b[7], &b[8], &b[9], &b[10], &b[11], &ip, &dp,
-                          &oc, &oi, &ocat, &bus, &bh, &ostar, &ohip))
-        return NULL;
-    const int64_t *I = ip.buf;
-    const double *D = dp.buf;
-    Lis L;
-    memset(&L, 0, sizeof L);
-    L.t = b[0].buf;
-    L.u0 = b[1].buf;
-    L.n = (long)(b[0].len / (2 * sizeof(double)));
+    memset(L, 0, sizeof *L);
+    L->t = t;
+    L->u0 = u0;
+    L->n = n;
     long k = (long)I[0];
-    Db db;
-    db.u64 = b[4].buf; db.u32 = b[5].buf; db.pstars = b[6].buf; db.key_lo = b[7].buf;
-    db.key_hi_start = b[8].buf; db.cell_start = b[9].buf; db.cell_index = b[10].buf;
-    db.cell_u = b[11].buf;
-    db.grid_n = (long)I[1]; db.key_bits = (long)I[2]; db.lo_bits = (long)I[3]; db.bins = (long)I[4];
-    db.n_patterns_db = (long)I[5];
-    L.db_n_patterns = db.n_patterns_db;
-    L.min_matches = (long)I[6]; L.max_candidates = (long)I[7]; L.fit = (int)I[8];
-    L.fit_radial = (int)I[9];
-    L.e_edge = D[0]; L.max_edge = D[1]; L.min_edge = D[2]; L.model_tol = D[3]; L.ftol = D[4];
-    L.error_rad = D[5]; L.half_diag = D[6]; L.gate_fine = D[7]; L.area0 = D[8];
-    L.p_false_max = D[9]; L.max_time_s = D[10];
-    for (int q = 0; q < 4; q++) L.bounds[q] = D[11 + q];
-    int status = -1;
-    long n = L.n > 0 ? L.n : 1;
-    L.ty = malloc(n * sizeof(double)); L.tz = malloc(n * sizeof(double));
-    L.w = malloc(3 * n * sizeof(double)); L.v = malloc(3 * n * sizeof(double));
-    L.d2 = malloc(n * sizeof(double)); L.d2b = malloc(n * sizeof(double));
-    L.img = malloc(n * sizeof(long)); L.jj = malloc(n * sizeof(long));
-    L.img2 = malloc(n * sizeof(long)); L.jj2 = malloc(n * sizeof(long));
-    L.cat = malloc(n * sizeof(long)); L.cat2 = malloc(n * sizeof(long));
-    L.lost_r = malloc(n * sizeof(long)); L.lost_j = malloc(n * sizeof(long));
-    if (L.ty && L.tz && L.w && L.v && L.d2 && L.d2b && L.img && L.jj && L.img2 && L.jj2 && L.cat
-        && L.cat2 && L.lost_r && L.lost_j && k <= 32) {
-        Py_BEGIN_ALLOW_THREADS
-        L.t_start = now_s();
-        status = lis_run(&L, &db, k, b[2].buf, b[3].buf, (long)(b[3].len / sizeof(int64_t)));
-        Py_END_ALLOW_THREADS
-    }
+    L->db_n_patterns = db->n_patterns_db;
+    L->min_matches = (long)I[6]; L->max_candidates = (long)I[7]; L->fit = (int)I[8];
+    L->fit_radial = (int)I[9];
+    L->e_edge = D[0]; L->max_edge = D[1]; L->min_edge = D[2]; L->model_tol = D[3]; L->ftol = D[4];
+    L->error_rad = D[5]; L->half_diag = D[6]; L->gate_fine = D[7]; L->area0 = D[8];
+    L->p_false_max = D[9]; L->max_time_s = D[10];
+    for (int q = 0; q < 4; q++) L->bounds[q] = D[11 + q];
+    long m = n > 0 ? n : 1;
+    L->ty = malloc(m * sizeof(double)); L->tz = malloc(m * sizeof(double));
+    L->w = malloc(3 * m * sizeof(double)); L->v = malloc(3 * m * sizeof(double));
+    L->d2 = malloc(m * sizeof(double)); L->d2b = malloc(m * sizeof(double));
+    L->img = malloc(m * sizeof(long)); L->jj = malloc(m * sizeof(long));
+    L->img2 = malloc(m * sizeof(long)); L->jj2 = malloc(m * sizeof(long));
+    L->cat = malloc(m * sizeof(long)); L->cat2 = malloc(m * sizeof(long));
+    L->lost_r = malloc(m * sizeof(long)); L->lost_j = malloc(m * sizeof(long));
+    if (!(L->ty && L->tz && L->w && L->v && L->d2 && L->d2b && L->img && L->jj && L->img2 && L->jj2
+          && L->cat && L->cat2 && L->lost_r && L->lost_j) || k > 32)
+        return -1;
+    L->t_start = now_s();
+    return lis_run(L, db, k, combos, ends, n_ends);
+}
+
+static void lis_free(Lis *L)
+{
+    free(L->ty); free(L->tz); free(L->w); free(L->v); free(L->d2); free(L->d2b); free(L->img);
+    free(L->jj); free(L->img2); free(L->jj2); free(L->cat); free(L->cat2); free(L->lost_r);
+    free(L->lost_j);
+    pred_free(&L->pred);
+}
+
+static void db_from(Db *db, Py_buffer *b, const int64_t *I)
+{
+    db->u64 = b[0].buf; db->u32 = b[1].buf; db->pstars = b[2].buf; db->key_lo = b[3].buf;
+    db->key_hi_start = b[4].buf; db->cell_start = b[5].buf; db->cell_index = b[6].buf;
+    db->cell_u = b[7].buf;
+    db->grid_n = (long)I[1]; db->key_bits = (long)I[2]; db->lo_bits = (long)I[3]; db->bins = (long)I[4];
+    db->n_patterns_db = (long)I[5];
+}
+
+/* the result of a search: (status, n_match, n_verified, n_patterns, s, k1, p_false, rms);
+ * solved: out_C and the star_index / hip outputs filled */
+static PyObject *lis_result(int status, Lis *L, Py_buffer *oc, const Py_buffer *bus,
+                            const Py_buffer *bh, Py_buffer *ostar, Py_buffer *ohip)
+{
     int scattered = 1;
     if (status == 1) {
-        memcpy(oc.buf, L.C, 9 * sizeof(double));
-        int64_t *oimg = oi.buf, *ocat_ = ocat.buf;
-        for (long i = 0; i < L.n_match; i++) { oimg[i] = L.img[i]; ocat_[i] = L.cat[i]; }
-        scattered = scatter_rows(oimg, ocat_, L.n_match, &bus, &bh, &ostar, &ohip);
+        memcpy(oc->buf, L->C, 9 * sizeof(double));
+        int64_t *ii = malloc((L->n_match + 1) * sizeof(int64_t)), *cc = malloc((L->n_match + 1) * sizeof(int64_t));
+        if (!ii || !cc) { free(ii); free(cc); status = -1; }
+        else {
+            for (long i = 0; i < L->n_match; i++) { ii[i] = L->img[i]; cc[i] = L->cat[i]; }
+            scattered = scatter_rows(ii, cc, L->n_match, bus, bh, ostar, ohip);
+            free(ii); free(cc);
+        }
     }
-    PyBuffer_Release(&bus); PyBuffer_Release(&bh); PyBuffer_Release(&ostar); PyBuffer_Release(&ohip);
-    free(L.ty); free(L.tz); free(L.w); free(L.v); free(L.d2); free(L.d2b); free(L.img);
-    free(L.jj); free(L.img2); free(L.jj2); free(L.cat); free(L.cat2); free(L.lost_r); free(L.lost_j);
-    pred_free(&L.pred);
-    release_all(b, NBUF);
-    PyBuffer_Release(&ip); PyBuffer_Release(&dp); PyBuffer_Release(&oc); PyBuffer_Release(&oi);
-    PyBuffer_Release(&ocat);
     if (status < 0) return PyErr_NoMemory();
     if (!scattered) {
         PyErr_SetString(PyExc_IndexError, "lis_solve: matched row out of range");
         return NULL;
     }
-    return Py_BuildValue("illldddd", status, L.n_match, L.n_verified, L.n_patterns, L.s, L.k1,
-                         L.p_false, L.rms);
+    return Py_BuildValue("illldddd", status, L->n_match, L->n_verified, L->n_patterns, L->s, L->k1,
+                         L->p_false, L->rms);
+}
+
+/* lis_solve(t, u0, combos, ends, u64, u32, pstars, key_lo, key_hi_start, cell_start,
+ *           cell_index, cell_u, iparams, dparams, out_C, usable, hip_db, out_star, out_hip)
+ * iparams (int64): k, grid_n, key_bits, lo_bits, bins, db_n_patterns, min_matches,
+ *                  max_candidates, fit, fit_radial
+ * dparams (float64): e_edge, max_edge, min_edge, model_tol, ftol, error_rad, half_diag,
+ *                    gate_fine, area0, p_false_max, max_time_s, bounds[4]
+ * returns (status, n_match, n_verified, n_patterns, s, k1, p_false, rms_arcsec) */
+static PyObject *py_lis_solve(PyObject *self, PyObject *args)
+{
+    Py_buffer bt, bu0, bco, ben, b[NBUF], ip, dp, oc, bus, bh, ostar, ohip;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*y*y*y*y*y*w*y*y*w*w*", &bt, &bu0, &bco, &ben,
+                          &b[0], &b[1], &b[2], &b[3], &b[4], &b[5], &b[6], &b[7], &ip, &dp,
+                          &oc, &bus, &bh, &ostar, &ohip))
+        return NULL;
+    const int64_t *I = ip.buf;
+    Db db;
+    db_from(&db, b, I);
+    Lis L;
+    int status;
+    Py_BEGIN_ALLOW_THREADS
+    status = lis_core(&L, &db, bt.buf, bu0.buf, (long)(bt.len / (2 * sizeof(double))), I, dp.buf,
+                      bco.buf, ben.buf, (long)(ben.len / sizeof(int64_t)));
+    Py_END_ALLOW_THREADS
+    PyObject *res = lis_result(status, &L, &oc, &bus, &bh, &ostar, &ohip);
+    lis_free(&L);
+    release_all(b, NBUF);
+    PyBuffer_Release(&bt); PyBuffer_Release(&bu0); PyBuffer_Release(&bco); PyBuffer_Release(&ben);
+    PyBuffer_Release(&ip); PyBuffer_Release(&dp); PyBuffer_Release(&oc);
+    PyBuffer_Release(&bus); PyBuffer_Release(&bh); PyBuffer_Release(&ostar); PyBuffer_Release(&ohip);
+    return res;
+}
+
+/* pinhole unprojection of xy (n, 2) with cam = (x0, y0, pixel_mm, f_mm) into u (n, 3) and
+ * t (n, 2) (Camera.unproject without distortion, then t = u[1:] / u[0]); 1 if all finite */
+static int unproject_rows(const double *xy, long n, const double *P, double *u, double *t)
+{
+    int finite = 1;
+    for (long i = 0; i < n; i++) {
+        double um = (xy[2 * i] - P[0]) * P[2], wm = (xy[2 * i + 1] - P[1]) * P[2];
+        double a = P[3], b = -wm, c = um;
+        double nn = sqrt(a * a + b * b + c * c);
+        a /= nn; b /= nn; c /= nn;
+        u[3 * i] = a; u[3 * i + 1] = b; u[3 * i + 2] = c;
+        t[2 * i] = b / a; t[2 * i + 1] = c / a;
+        if (!isfinite(t[2 * i]) || !isfinite(t[2 * i + 1])) finite = 0;
+    }
+    return finite;
+}
+
+/* unit vectors (n, 3) of t (n, 2) at focal scale s and radial k1 (StarField.unit) */
+static void unit_rows_of(const double *t, long n, double s, double k1, double *u)
+{
+    for (long i = 0; i < n; i++) {
+        double ty = t[2 * i], tz = t[2 * i + 1], f = s;
+        if (k1 != 0.0) f = s * (1.0 + k1 * (ty * ty + tz * tz));
+        ty *= f; tz *= f;
+        double nn = sqrt(1.0 + ty * ty + tz * tz);
+        u[3 * i] = 1.0 / nn; u[3 * i + 1] = ty / nn; u[3 * i + 2] = tz / nn;
+    }
+}
+
+/* lis_pinhole(xy, cam, combos, ends, <the 8 database arrays>, iparams, dparams, out_C,
+ *             out_u, hip_db, out_star, out_hip): lis_solve from pixel centroids of a
+ * camera without distortion, cam = (x0_px, y0_px, pixel_mm, f_mm) (float64), in one call:
+ * out_u (N, 3) gets the stars' unit vectors (at the solved focal scale and radial term
+ * when solved); the brightest iparams[10] rows are searched.  None when a centroid is
+ * not finite (the caller takes the general path); else lis_solve's tuple. */
+static PyObject *py_lis_pinhole(PyObject *self, PyObject *args)
+{
+    Py_buffer bx, bcam, bco, ben, b[NBUF], ip, dp, oc, ou, bh, ostar, ohip;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*y*y*y*y*y*w*w*y*w*w*", &bx, &bcam, &bco, &ben,
+                          &b[0], &b[1], &b[2], &b[3], &b[4], &b[5], &b[6], &b[7], &ip, &dp,
+                          &oc, &ou, &bh, &ostar, &ohip))
+        return NULL;
+    const int64_t *I = ip.buf;
+    long n = (long)(bx.len / (2 * sizeof(double))), m = (long)I[10];
+    Db db;
+    db_from(&db, b, I);
+    Lis L;
+    memset(&L, 0, sizeof L);
+    int status = -1, finite = 0;
+    double *t = malloc((n > 0 ? n : 1) * 2 * sizeof(double));
+    if (t && m <= n && (long)(ou.len / (3 * sizeof(double))) == n) {
+        Py_BEGIN_ALLOW_THREADS
+        finite = unproject_rows(bx.buf, n, bcam.buf, ou.buf, t);
+        if (finite) {
+            status = lis_core(&L, &db, t, ou.buf, m, I, dp.buf, bco.buf, ben.buf,
+                              (long)(ben.len / sizeof(int64_t)));
+            if (status == 1 && !(L.s == 1.0 && L.k1 == 0.0)) unit_rows_of(t, n, L.s, L.k1, ou.buf);
+        }
+        Py_END_ALLOW_THREADS
+    }
+    PyObject *res;
+    if (t && !finite) { Py_INCREF(Py_None); res = Py_None; }
+    else {
+        Py_buffer none_used;
+        memset(&none_used, 0, sizeof none_used);
+        none_used.len = 0;
+        none_used.buf = NULL;
+        res = lis_result(status, &L, &oc, &none_used, &bh, &ostar, &ohip);
+    }
+    free(t);
+    lis_free(&L);
+    release_all(b, NBUF);
+    PyBuffer_Release(&bx); PyBuffer_Release(&bcam); PyBuffer_Release(&bco); PyBuffer_Release(&ben);
+    PyBuffer_Release(&ip); PyBuffer_Release(&dp); PyBuffer_Release(&oc); PyBuffer_Release(&ou);
+    PyBuffer_Release(&bh); PyBuffer_Release(&ostar); PyBuffer_Release(&ohip);
+    return res;
 }
 
 /* ---------------------------------------------------------------------------------
@@ -1162,6 +1335,15 @@ static int scene_match(Scene *S, const double *C_prior, double shy, double shz, 
     k = settle(S, img, j, d2, k, n_lost, C_prior, C);
     *k_out = k;
     if (k < S->min_matches) return 4;
+    long k2 = scatter_screen(img, j, d2, k, S->gate, S->tmp_d);
+    if (k2 < k) {                                           /* refit without the outliers */
+        k = k2;
+        *k_out = k;
+        double Cn[9];
+        memcpy(Cn, C, sizeof Cn);
+        fit(S, img, j, k, Cn, C);
+        residuals2(S, img, j, k, C, d2);
+    }
     long c = 0;
     for (long q = 0; q < S->m; q++)
         c += fabs(S->sy[q] - box[0]) <= box[2] && fabs(S->sz[q] - box[1]) <= box[3];
@@ -1329,35 +1511,26 @@ static int track_run(Scene *S, const double *C_prior, const double *box, long *i
     return 0;
 }
 
-/* track_solve(t, w, C_prior, cell_u, cell_start, cell_index, iparams, dparams, out_C,
- *             out_img, out_cat)
- * iparams (int64): grid_n, min_matches, n_trials
- * dparams (float64): box[4] (cy, cz, hy, hz), gate, gate_prior, gate_shift, area, limit
- * returns (code, count, p, voted, n_match, p_false, rms_arcsec) */
-static PyObject *py_track_solve(PyObject *self, PyObject *args)
+/* Tracking of the stars t (n, 2), w (n, 3) from C_prior with iparams (grid_n,
+ * min_matches, n_trials) and dparams (box[4], gate, gate_prior, gate_shift, area, limit):
+ * 0 (out filled; solved when out->code == 0, then img / cat [0, out->k) and *rms), -1 no
+ * memory.  img, cat: n longs. */
+static int track_core(const double *t, const double *w, long n_stars, const double *C_prior,
+                      const double *cell_u, const int32_t *cell_start, const uint32_t *cell_index,
+                      const int64_t *I, const double *D, TrackOut *out, long *img, long *cat,
+                      double *rms_out)
 {
-    Py_buffer bt, bw, bc, bu, bcs, bci, ip, dp, oc, oi, ocat, bus, bh, ostar, ohip;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*w*w*w*y*y*w*w*", &bt, &bw, &bc, &bu, &bcs, &bci, &ip,
-                          &dp, &oc, &oi, &ocat, &bus, &bh, &ostar, &ohip))
-        return NULL;
-    const int64_t *I = ip.buf;
-    const double *D = dp.buf;
-    const double *C_prior = bc.buf;
-    const double *cell_u = bu.buf;
-    const int32_t *cell_start = bcs.buf;
-    const uint32_t *cell_index = bci.buf;
     long grid_n = (long)I[0];
     Scene S;
     memset(&S, 0, sizeof S);
-    S.n = (long)(bt.len / (2 * sizeof(double)));
-    S.t = bt.buf;
-    S.w = bw.buf;
+    S.n = n_stars;
+    S.t = t;
+    S.w = w;
     S.min_matches = (long)I[1];
     S.n_trials = (long)I[2];
     double box[4] = {D[0], D[1], D[2], D[3]};
     S.gate = D[4]; S.gate_prior = D[5]; S.gate_shift = D[6]; S.area = D[7]; S.limit = D[8];
-    TrackOut out;
-    memset(&out, 0, sizeof out);
+    memset(out, 0, sizeof *out);
     int rc = -1;
     double rms = NAN;
     double bore[3] = {C_prior[0], C_prior[3], C_prior[6]};
@@ -1375,12 +1548,10 @@ static PyObject *py_track_solve(PyObject *self, PyObject *args)
     S.ord = malloc(mc * sizeof(long)); S.sty = malloc(mc * sizeof(double));
     S.lost_j = malloc(n * sizeof(long)); S.tmp_i = malloc(n * sizeof(long));
     S.tmp_j = malloc(n * sizeof(long)); S.tmp_d = malloc(n * sizeof(double));
-    long *img = malloc(n * sizeof(long)), *j = malloc(n * sizeof(long));
+    long *j = malloc(n * sizeof(long));
     double *d2 = malloc(n * sizeof(double));
     if (my && mz && rows && u && py && pz && S.sy && S.sz && S.qy && S.qz && S.wb && S.vb && S.best_k
-        && S.ord && S.sty
-        && S.lost_r && S.lost_j && S.tmp_i && S.tmp_j && S.tmp_d && img && j && d2) {
-        Py_BEGIN_ALLOW_THREADS
+        && S.ord && S.sty && S.lost_r && S.lost_j && S.tmp_i && S.tmp_j && S.tmp_d && j && d2) {
         for (long i = 0; i < S.n; i++) { my[i] = S.t[2 * i]; mz[i] = S.t[2 * i + 1]; }
         S.my = my; S.mz = mz;
         long m = 0;
@@ -1397,41 +1568,126 @@ static PyObject *py_track_solve(PyObject *self, PyObject *args)
             }
         }
         S.m = m; S.rows = rows; S.u = u; S.py = py; S.pz = pz;
-        rc = track_run(&S, C_prior, box, img, j, d2, &out);
-        if (rc == 0 && out.code == 0) {
+        rc = track_run(&S, C_prior, box, img, j, d2, out);
+        if (rc == 0 && out->code == 0) {
             double ss = 0.0;
-            for (long i = 0; i < out.k; i++) {
-                const double *w = S.w + 3 * img[i], *v = u + 3 * j[i];
+            for (long i = 0; i < out->k; i++) {
+                const double *ww = S.w + 3 * img[i], *v = u + 3 * j[i];
                 for (int r = 0; r < 3; r++) {
-                    double x = out.C[3 * r] * w[0] + out.C[3 * r + 1] * w[1] + out.C[3 * r + 2] * w[2] - v[r];
+                    double x = out->C[3 * r] * ww[0] + out->C[3 * r + 1] * ww[1] + out->C[3 * r + 2] * ww[2] - v[r];
                     ss += x * x;
                 }
             }
-            rms = sqrt(ss / out.k) * RAD2ASEC;
+            rms = sqrt(ss / out->k) * RAD2ASEC;
+            for (long i = 0; i < out->k; i++) cat[i] = rows[j[i]];
         }
-        Py_END_ALLOW_THREADS
     }
-    int scattered = 1;
-    if (rc == 0 && out.code == 0) {
-        memcpy(oc.buf, out.C, 9 * sizeof(double));
-        int64_t *oimg = oi.buf, *ocat_ = ocat.buf;
-        for (long i = 0; i < out.k; i++) { oimg[i] = img[i]; ocat_[i] = rows[j[i]]; }
-        scattered = scatter_rows(oimg, ocat_, out.k, &bus, &bh, &ostar, &ohip);
-    }
-    PyBuffer_Release(&bus); PyBuffer_Release(&bh); PyBuffer_Release(&ostar); PyBuffer_Release(&ohip);
     free(my); free(mz); free(rows); free(u); free(py); free(pz); free(S.sy); free(S.sz); free(S.qy);
     free(S.qz); free(S.wb); free(S.vb); free(S.best_k); free(S.lost_r); free(S.lost_j); free(S.tmp_i);
-    free(S.tmp_j); free(S.tmp_d); free(img); free(j); free(d2); free(S.ord); free(S.sty);
-    PyBuffer_Release(&bt); PyBuffer_Release(&bw); PyBuffer_Release(&bc); PyBuffer_Release(&bu);
-    PyBuffer_Release(&bcs); PyBuffer_Release(&bci); PyBuffer_Release(&ip); PyBuffer_Release(&dp);
-    PyBuffer_Release(&oc); PyBuffer_Release(&oi); PyBuffer_Release(&ocat);
+    free(S.tmp_j); free(S.tmp_d); free(j); free(d2); free(S.ord); free(S.sty);
+    *rms_out = rms;
+    return rc;
+}
+
+/* (code, count, p, voted, n_match, p_false, rms_arcsec, 0.0); solved: out_C and the
+ * star_index / hip outputs filled */
+static PyObject *track_result(int rc, const TrackOut *out, const long *img, const long *cat, double rms,
+                              Py_buffer *oc, const Py_buffer *bus, const Py_buffer *bh,
+                              Py_buffer *ostar, Py_buffer *ohip)
+{
+    int scattered = 1;
+    if (rc == 0 && out->code == 0) {
+        memcpy(oc->buf, out->C, 9 * sizeof(double));
+        int64_t *ii = malloc((out->k + 1) * sizeof(int64_t)), *cc = malloc((out->k + 1) * sizeof(int64_t));
+        if (!ii || !cc) rc = -1;
+        else {
+            for (long i = 0; i < out->k; i++) { ii[i] = img[i]; cc[i] = cat[i]; }
+            scattered = scatter_rows(ii, cc, out->k, bus, bh, ostar, ohip);
+        }
+        free(ii); free(cc);
+    }
     if (rc < 0) return PyErr_NoMemory();
     if (!scattered) {
         PyErr_SetString(PyExc_IndexError, "track_solve: matched row out of range");
         return NULL;
     }
-    return Py_BuildValue("ildilddd", out.code, out.count, out.p, out.voted, out.k, out.p_false, rms,
-                         0.0);
+    return Py_BuildValue("ildilddd", out->code, out->count, out->p, out->voted, out->k, out->p_false,
+                         rms, 0.0);
+}
+
+/* track_solve(t, w, C_prior, cell_u, cell_start, cell_index, iparams, dparams, out_C,
+ *             usable, hip_db, out_star, out_hip)
+ * iparams (int64): grid_n, min_matches, n_trials
+ * dparams (float64): box[4] (cy, cz, hy, hz), gate, gate_prior, gate_shift, area, limit
+ * returns (code, count, p, voted, n_match, p_false, rms_arcsec, 0.0) */
+static PyObject *py_track_solve(PyObject *self, PyObject *args)
+{
+    Py_buffer bt, bw, bc, bu, bcs, bci, ip, dp, oc, bus, bh, ostar, ohip;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*w*y*y*w*w*", &bt, &bw, &bc, &bu, &bcs, &bci, &ip,
+                          &dp, &oc, &bus, &bh, &ostar, &ohip))
+        return NULL;
+    long n = (long)(bt.len / (2 * sizeof(double)));
+    long *img = malloc((n > 0 ? n : 1) * sizeof(long)), *cat = malloc((n > 0 ? n : 1) * sizeof(long));
+    TrackOut out;
+    memset(&out, 0, sizeof out);
+    int rc = -1;
+    double rms = NAN;
+    if (img && cat) {
+        Py_BEGIN_ALLOW_THREADS
+        rc = track_core(bt.buf, bw.buf, n, bc.buf, bu.buf, bcs.buf, bci.buf, ip.buf, dp.buf, &out, img,
+                        cat, &rms);
+        Py_END_ALLOW_THREADS
+    }
+    PyObject *res = track_result(rc, &out, img, cat, rms, &oc, &bus, &bh, &ostar, &ohip);
+    free(img); free(cat);
+    PyBuffer_Release(&bt); PyBuffer_Release(&bw); PyBuffer_Release(&bc); PyBuffer_Release(&bu);
+    PyBuffer_Release(&bcs); PyBuffer_Release(&bci); PyBuffer_Release(&ip); PyBuffer_Release(&dp);
+    PyBuffer_Release(&oc); PyBuffer_Release(&bus); PyBuffer_Release(&bh); PyBuffer_Release(&ostar);
+    PyBuffer_Release(&ohip);
+    return res;
+}
+
+/* track_pinhole(xy, cam, C_prior, cell_u, cell_start, cell_index, iparams, dparams, out_C,
+ *               out_u, hip_db, out_star, out_hip): track_solve from pixel centroids of a
+ * camera without distortion, cam = (x0_px, y0_px, pixel_mm, f_mm), at focal scale 1, in
+ * one call: out_u (N, 3) gets the stars' unit vectors; the brightest iparams[3] rows are
+ * used.  None when a centroid is not finite (the caller takes the general path). */
+static PyObject *py_track_pinhole(PyObject *self, PyObject *args)
+{
+    Py_buffer bx, bcam, bc, bu, bcs, bci, ip, dp, oc, ou, bh, ostar, ohip;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*w*w*y*w*w*", &bx, &bcam, &bc, &bu, &bcs, &bci, &ip,
+                          &dp, &oc, &ou, &bh, &ostar, &ohip))
+        return NULL;
+    const int64_t *I = ip.buf;
+    long n = (long)(bx.len / (2 * sizeof(double))), m = (long)I[3];
+    long nn = n > 0 ? n : 1;
+    long *img = malloc(nn * sizeof(long)), *cat = malloc(nn * sizeof(long));
+    double *t = malloc(2 * nn * sizeof(double));
+    TrackOut out;
+    memset(&out, 0, sizeof out);
+    int rc = -1, finite = 0;
+    double rms = NAN;
+    if (img && cat && t && m <= n && (long)(ou.len / (3 * sizeof(double))) == n) {
+        Py_BEGIN_ALLOW_THREADS
+        finite = unproject_rows(bx.buf, n, bcam.buf, ou.buf, t);
+        if (finite)
+            rc = track_core(t, ou.buf, m, bc.buf, bu.buf, bcs.buf, bci.buf, I, dp.buf, &out, img, cat,
+                            &rms);
+        Py_END_ALLOW_THREADS
+    }
+    PyObject *res;
+    if (img && cat && t && !finite && rc == -1 && m <= n) { Py_INCREF(Py_None); res = Py_None; }
+    else {
+        Py_buffer none_used;
+        memset(&none_used, 0, sizeof none_used);
+        res = track_result(rc, &out, img, cat, rms, &oc, &none_used, &bh, &ostar, &ohip);
+    }
+    free(img); free(cat); free(t);
+    PyBuffer_Release(&bx); PyBuffer_Release(&bcam); PyBuffer_Release(&bc); PyBuffer_Release(&bu);
+    PyBuffer_Release(&bcs); PyBuffer_Release(&bci); PyBuffer_Release(&ip); PyBuffer_Release(&dp);
+    PyBuffer_Release(&oc); PyBuffer_Release(&ou); PyBuffer_Release(&bh); PyBuffer_Release(&ostar);
+    PyBuffer_Release(&ohip);
+    return res;
 }
 
 /* wahba(w, v) -> C bytes (for tests: the compiled QUEST against the Python one) */
@@ -1451,19 +1707,7 @@ static PyObject *py_pinhole_unproject(PyObject *self, PyObject *args)
 {
     Py_buffer bx, bp, ou, ot;
     if (!PyArg_ParseTuple(args, "y*y*w*w*", &bx, &bp, &ou, &ot)) return NULL;
-    const double *xy = bx.buf, *P = bp.buf;
-    double *u = ou.buf, *t = ot.buf;
-    long n = (long)(bx.len / (2 * sizeof(double)));
-    int finite = 1;
-    for (long i = 0; i < n; i++) {
-        double um = (xy[2 * i] - P[0]) * P[2], wm = (xy[2 * i + 1] - P[1]) * P[2];
-        double a = P[3], b = -wm, c = um;
-        double nn = sqrt(a * a + b * b + c * c);
-        a /= nn; b /= nn; c /= nn;
-        u[3 * i] = a; u[3 * i + 1] = b; u[3 * i + 2] = c;
-        t[2 * i] = b / a; t[2 * i + 1] = c / a;
-        if (!isfinite(t[2 * i]) || !isfinite(t[2 * i + 1])) finite = 0;
-    }
+    int finite = unproject_rows(bx.buf, (long)(bx.len / (2 * sizeof(double))), bp.buf, ou.buf, ot.buf);
     PyBuffer_Release(&bx); PyBuffer_Release(&bp); PyBuffer_Release(&ou); PyBuffer_Release(&ot);
     return PyBool_FromLong(finite);
 }
@@ -1474,16 +1718,7 @@ static PyObject *py_unit_rows(PyObject *self, PyObject *args)
     Py_buffer bt, ou;
     double s, k1;
     if (!PyArg_ParseTuple(args, "y*ddw*", &bt, &s, &k1, &ou)) return NULL;
-    const double *t = bt.buf;
-    double *u = ou.buf;
-    long n = (long)(bt.len / (2 * sizeof(double)));
-    for (long i = 0; i < n; i++) {
-        double ty = t[2 * i], tz = t[2 * i + 1], f = s;
-        if (k1 != 0.0) f = s * (1.0 + k1 * (ty * ty + tz * tz));
-        ty *= f; tz *= f;
-        double nn = sqrt(1.0 + ty * ty + tz * tz);
-        u[3 * i] = 1.0 / nn; u[3 * i + 1] = ty / nn; u[3 * i + 2] = tz / nn;
-    }
+    unit_rows_of(bt.buf, (long)(bt.len / (2 * sizeof(double))), s, k1, ou.buf);
     PyBuffer_Release(&bt); PyBuffer_Release(&ou);
     Py_RETURN_NONE;
 }
@@ -1535,6 +1770,8 @@ static PyObject *py_tail_bound(PyObject *self, PyObject *args)
 static PyMethodDef methods[] = {
     {"lis_solve", py_lis_solve, METH_VARARGS, "lost-in-space search (see _kernels.py)"},
     {"track_solve", py_track_solve, METH_VARARGS, "tracking (see _kernels.py)"},
+    {"lis_pinhole", py_lis_pinhole, METH_VARARGS, "lis_solve from pixel centroids (see _kernels.py)"},
+    {"track_pinhole", py_track_pinhole, METH_VARARGS, "track_solve from pixel centroids (see _kernels.py)"},
     {"wahba", py_wahba, METH_VARARGS, "QUEST of unit vectors (see _kernels.py)"},
     {"pinhole_unproject", py_pinhole_unproject, METH_VARARGS, "see _kernels.py"},
     {"unit_rows", py_unit_rows, METH_VARARGS, "see _kernels.py"},

@@ -18,7 +18,7 @@ import numpy as np
 from shipstar.errors import ShipstarError
 
 __all__ = ["StarField", "field_from_unit_vectors", "field_from_camera", "field_from_pinhole",
-           "pinhole_focal_px"]
+           "pinhole_focal_px", "camera_bounds", "pinhole_bounds", "pinhole_input"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -157,6 +157,33 @@ def _corner_points(width_px: int, height_px: int) -> np.ndarray:
 _BOUNDS_CACHE: dict = {}
 
 
+def pinhole_input(stars, camera):
+    """``(xy_px (N, 2) float64 C-ordered, (x0_px, y0_px, pixel_mm, f_mm), bounds)`` when
+    ``stars`` are pixel centroids (N, 2) and ``camera`` a camera without distortion: the
+    compiled one-call paths take them with no :class:`StarField`.  None otherwise (the
+    general path checks the input and builds the field)."""
+    try:
+        if not camera.distortion.is_zero:
+            return None
+        cam = (float(camera.x0_px), float(camera.y0_px), float(camera.pixel_mm), float(camera.f_mm))
+        bounds = pinhole_bounds(camera)
+        xy = np.ascontiguousarray(stars, dtype=np.float64)
+    except (AttributeError, TypeError, ValueError):
+        return None
+    if xy.ndim != 2 or xy.shape[1] != 2:
+        return None
+    return xy, cam, bounds
+
+
+def pinhole_bounds(camera) -> tuple:
+    """:func:`camera_bounds` of a camera without distortion, as four floats: the image
+    edges' tangent-plane lines."""
+    scale = camera.pixel_mm / camera.f_mm
+    x0, y0 = camera.x0_px, camera.y0_px
+    return (-(camera.height_px - 0.5 - y0) * scale, (y0 + 0.5) * scale,
+            -(x0 + 0.5) * scale, (camera.width_px - 0.5 - x0) * scale)
+
+
 def camera_bounds(camera) -> np.ndarray:
     """Tangent-plane rectangle ``(y_min, y_max, z_min, z_max)`` spanned by the image
     edges (corners and edge midpoints, distortion included); cached per camera."""
@@ -165,10 +192,7 @@ def camera_bounds(camera) -> np.ndarray:
     if hit is not None and hit[0] is camera:
         return hit[1]
     if camera.distortion.is_zero:           # a pinhole: the edges' tangent-plane lines
-        scale = camera.pixel_mm / camera.f_mm
-        x0, y0 = camera.x0_px, camera.y0_px
-        bounds = np.array([-(camera.height_px - 0.5 - y0) * scale, (y0 + 0.5) * scale,
-                           -(x0 + 0.5) * scale, (camera.width_px - 0.5 - x0) * scale])
+        bounds = np.array(pinhole_bounds(camera))
     else:
         edge = camera.unproject(_corner_points(camera.width_px, camera.height_px))
         te = edge[:, 1:] / edge[:, :1]

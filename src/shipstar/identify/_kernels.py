@@ -15,14 +15,17 @@ import numpy as np
 from shipstar.identify import _ckernels
 from shipstar.identify._verify import unit_f64
 
-__all__ = ["db_buffers", "lis_solve", "track_solve", "wahba", "pinhole_unproject", "unit_rows"]
+__all__ = ["db_buffers", "lis_solve", "lis_pinhole", "track_solve", "track_pinhole", "wahba",
+           "pinhole_unproject", "unit_rows"]
 
 _NO_ROWS = np.empty(0, dtype=np.int64)
+#: native float64 (the compiled entries read raw buffers; "y*" / "w*" refuse non-C-ordered ones)
+_F64 = np.dtype(np.float64)
 
 #: scalar parameters travel as packed native int64 / float64 buffers
-_pack_i10 = struct.Struct("=10q").pack
+_pack_i11 = struct.Struct("=11q").pack
 _pack_d15 = struct.Struct("=15d").pack
-_pack_i3 = struct.Struct("=3q").pack
+_pack_i4 = struct.Struct("=4q").pack
 _pack_d9 = struct.Struct("=9d").pack
 _pack_d4 = struct.Struct("=4d").pack
 
@@ -58,8 +61,14 @@ class _DbBuffers:
                 or (self.pstars.size and int(self.pstars.max()) >= db.n_stars)
                 or (self.cell_index.size and int(self.cell_index.max()) >= db.n_stars)):
             raise ValueError("star database arrays are inconsistent")
+        # the compiled look-up reads a key bucket's rows as sorted by key_lo (the patterns
+        # are sorted by their whole key when the database is built)
+        lo = self.key_lo.astype(np.int64)
+        if lo.size and np.any((np.diff(lo) < 0) & (np.diff(np.repeat(
+                np.arange(self.key_hi_start.shape[0] - 1), np.diff(self.key_hi_start))) == 0)):
+            raise ValueError("star database patterns are not sorted by key")
         # the star vectors of every cell in cell order: a prediction reads them in sequence
-        self.cell_u = np.ascontiguousarray(self.u64[self.cell_index.astype(np.intp)])
+        self.cell_u = self.u64.take(self.cell_index, axis=0)    # a gather, ~3x faster than u64[rows]
         self.grid_n, self.key_bits, self.lo_bits = int(db.grid_n), int(db.key_bits), int(db.lo_bits)
         self.bins, self.n_patterns = int(db.params.bins), int(db.n_patterns)
 
@@ -107,15 +116,28 @@ def _usable(usable) -> np.ndarray:
     return _NO_ROWS if usable is None else np.ascontiguousarray(usable, dtype=np.int64)
 
 
-def lis_solve(t, u0, k: int, combos, ends, db, *, n_field: int, usable, min_matches: int,
-              max_candidates: int, fit: bool, fit_radial: bool, e_edge: float, max_edge: float,
-              min_edge: float, model_tol: float, ftol: float, error_rad: float, half_diag: float,
-              gate_fine: float, area0: float, p_false_max: float, max_time_s: float, bounds):
+def lis_params(b: "_DbBuffers", k: int, m: int, params):
+    """The packed ``(iparams, dparams)`` of the compiled search; ``params = (min_matches,
+    max_candidates, fit, fit_radial, e_edge, max_edge, min_edge, model_tol, ftol,
+    error_rad, half_diag, gate_fine, area0, p_false_max, max_time_s, bounds (y0, y1, z0,
+    z1))``."""
+    (min_matches, max_candidates, fit, fit_radial, e_edge, max_edge, min_edge, model_tol, ftol,
+     error_rad, half_diag, gate_fine, area0, p_false_max, max_time_s, bounds) = params
+    ip = _pack_i11(k, b.grid_n, b.key_bits, b.lo_bits, b.bins, b.n_patterns, min_matches,
+                   max_candidates, int(fit), int(fit_radial), m)
+    y0, y1, z0, z1 = bounds
+    dp = _pack_d15(e_edge, max_edge, min_edge, model_tol, ftol, error_rad, half_diag, gate_fine,
+                   area0, p_false_max, max_time_s, y0, y1, z0, z1)
+    return ip, dp
+
+
+def lis_solve(t, u0, k: int, combos, ends, db, params, *, n_field: int, usable):
     """The lost-in-space search over the usable stars ``t (n, 2)``, ``u0 (n, 3)``.
 
     ``combos (C, 4)`` are the 4-star patterns of the brightest ``k`` stars in search
     order and ``ends`` the end rows of their batches; ``usable`` the input rows of the
-    ``n`` stars (None: rows ``0 .. n - 1``) of the ``n_field`` input stars.  Returns
+    ``n`` stars (None: rows ``0 .. n - 1``) of the ``n_field`` input stars; ``params``
+    the gates and limits (:func:`lis_params`, from :func:`._lost_in_space.search_params`).  Returns
     ``(status, C (3, 3), star_index (n_field,), hip (n_field,), n_matched, n_verified,
     n_patterns, s, k1, p_false, rms_arcsec)``; status 1: solved, 0: no candidate
     verified, 2: stopped by ``max_time_s`` / ``max_candidates``.
@@ -127,29 +149,55 @@ def lis_solve(t, u0, k: int, combos, ends, db, *, n_field: int, usable, min_matc
         raise ValueError("bad lost-in-space input sizes")
     _check_combos(combos, ends, k)
     b = db_buffers(db)
-    ip = _pack_i10(k, b.grid_n, b.key_bits, b.lo_bits, b.bins, b.n_patterns, min_matches,
-                   max_candidates, int(fit), int(fit_radial))
-    y0, y1, z0, z1 = bounds
-    dp = _pack_d15(e_edge, max_edge, min_edge, model_tol, ftol, error_rad, half_diag, gate_fine,
-                   area0, p_false_max, max_time_s, y0, y1, z0, z1)
+    ip, dp = lis_params(b, k, n, params)
     C = np.empty((3, 3))
-    img = np.empty(n, dtype=np.int64)
-    cat = np.empty(n, dtype=np.int64)
     star = np.empty(n_field, dtype=np.int64)
     hip = np.empty(n_field, dtype=np.int64)
     status, m, n_verified, n_patterns, s, k1, p_false, rms = _ckernels.lis_solve(
         t, u0, combos, ends, b.u64, b.u32, b.pstars, b.key_lo, b.key_hi_start, b.cell_start,
-        b.cell_index, b.cell_u, ip, dp, C, img, cat, _usable(usable), b.hip, star, hip)
+        b.cell_index, b.cell_u, ip, dp, C, _usable(usable), b.hip, star, hip)
     return status, C, star, hip, m, n_verified, n_patterns, s, k1, p_false, rms
 
 
-def track_solve(t, w, C_prior, db, *, n_field: int, usable, min_matches: int, n_trials: int, box,
-                gate: float, gate_prior: float, gate_shift: float, area: float, limit: float):
+def lis_pinhole(xy, cam, m: int, k: int, combos, ends, db, params):
+    """:func:`lis_solve` from pixel centroids ``xy (N, 2)`` (float64, C order) of a camera
+    without distortion, ``cam = (x0_px, y0_px, pixel_mm, f_mm)``, in one compiled call
+    (the unprojection of :func:`pinhole_unproject` included); the brightest ``m`` rows
+    are the usable stars.  Returns None when a centroid is not finite, else
+    ``(status, C, star_index, hip, u_sensor (N, 3), n_matched, n_verified, n_patterns,
+    s, k1, p_false, rms_arcsec)`` with ``u_sensor`` at the solved ``s`` and ``k1``."""
+    n = xy.shape[0]
+    if xy.dtype is not _F64 or xy.shape != (n, 2) or not 4 <= k <= min(m, 32) or m > n:
+        raise ValueError("bad lost-in-space input sizes")
+    _check_combos(combos, ends, k)
+    b = db_buffers(db)
+    ip, dp = lis_params(b, k, m, params)
+    C = np.empty((3, 3))
+    u = np.empty((n, 3))
+    star = np.empty(n, dtype=np.int64)
+    hip = np.empty(n, dtype=np.int64)
+    out = _ckernels.lis_pinhole(
+        xy, _pack_d4(*cam), combos, ends, b.u64, b.u32, b.pstars, b.key_lo, b.key_hi_start,
+        b.cell_start, b.cell_index, b.cell_u, ip, dp, C, u, b.hip, star, hip)
+    if out is None:
+        return None
+    status, n_match, n_verified, n_patterns, s, k1, p_false, rms = out
+    return status, C, star, hip, u, n_match, n_verified, n_patterns, s, k1, p_false, rms
+
+
+def _track_params(b: "_DbBuffers", m: int, params):
+    min_matches, n_trials, (cy, cz, hy, hz), gate, gate_prior, gate_shift, area, limit = params
+    return (_pack_i4(b.grid_n, min_matches, n_trials, m),
+            _pack_d9(cy, cz, hy, hz, gate, gate_prior, gate_shift, area, limit))
+
+
+def track_solve(t, w, C_prior, db, params, *, n_field: int, usable):
     """Tracking of the stars ``t (n, 2)`` (tangent plane at the focal scale), ``w (n, 3)``
     (their unit vectors; input rows ``usable``, None: ``0 .. n - 1``, of ``n_field``)
-    from ``C_prior (3, 3)``.  Returns ``(code, count, p, voted, C (3, 3), star_index
-    (n_field,), hip (n_field,), n_matched, p_false, rms_arcsec)``: code 0 solved, else
-    the reason (see :mod:`._tracking`) with its count / chance probability."""
+    from ``C_prior (3, 3)``; ``params`` the gates (:func:`._tracking.track_params`).
+    Returns ``(code, count, p, voted, C (3, 3), star_index (n_field,), hip (n_field,),
+    n_matched, p_false, rms_arcsec)``: code 0 solved, else the reason (see
+    :mod:`._tracking`) with its count / chance probability."""
     t = _f64(t, 2)
     w = _f64(w, 3)
     n = t.shape[0]
@@ -159,18 +207,40 @@ def track_solve(t, w, C_prior, db, *, n_field: int, usable, min_matches: int, n_
     if C_prior.shape != (3, 3):
         raise ValueError("C_prior must be (3, 3)")
     b = db_buffers(db)
-    ip = _pack_i3(b.grid_n, min_matches, n_trials)
-    cy, cz, hy, hz = box
-    dp = _pack_d9(cy, cz, hy, hz, gate, gate_prior, gate_shift, area, limit)
+    ip, dp = _track_params(b, n, params)
     C = np.empty((3, 3))
-    img = np.empty(max(n, 1), dtype=np.int64)
-    cat = np.empty(max(n, 1), dtype=np.int64)
     star = np.empty(n_field, dtype=np.int64)
     hip = np.empty(n_field, dtype=np.int64)
     code, count, p, voted, m, p_false, rms, _ = _ckernels.track_solve(
-        t, w, C_prior, b.cell_u, b.cell_start, b.cell_index, ip, dp, C, img, cat, _usable(usable),
+        t, w, C_prior, b.cell_u, b.cell_start, b.cell_index, ip, dp, C, _usable(usable),
         b.hip, star, hip)
     return code, count, p, bool(voted), C, star, hip, m, p_false, rms
+
+
+def track_pinhole(xy, cam, m: int, C_prior, db, params):
+    """:func:`track_solve` from pixel centroids ``xy (N, 2)`` (float64, C order) of a
+    camera without distortion, ``cam = (x0_px, y0_px, pixel_mm, f_mm)``, at focal scale
+    1, in one compiled call; the brightest ``m`` (<= 64) rows are used.  Returns None
+    when a centroid is not finite, else ``(code, count, p, voted, C, star_index, hip,
+    u_sensor (N, 3), n_matched, p_false, rms_arcsec)``."""
+    n = xy.shape[0]
+    if xy.dtype is not _F64 or xy.shape != (n, 2) or m > min(n, 64):   # C order: the buffer's
+        raise ValueError("bad tracking input sizes")
+    C_prior = np.ascontiguousarray(C_prior, dtype=np.float64)
+    if C_prior.shape != (3, 3):
+        raise ValueError("C_prior must be (3, 3)")
+    b = db_buffers(db)
+    ip, dp = _track_params(b, m, params)
+    C = np.empty((3, 3))
+    u = np.empty((n, 3))
+    star = np.empty(n, dtype=np.int64)
+    hip = np.empty(n, dtype=np.int64)
+    out = _ckernels.track_pinhole(xy, _pack_d4(*cam), C_prior, b.cell_u, b.cell_start, b.cell_index,
+                                  ip, dp, C, u, b.hip, star, hip)
+    if out is None:
+        return None
+    code, count, p, voted, n_match, p_false, rms, _ = out
+    return code, count, p, bool(voted), C, star, hip, u, n_match, p_false, rms
 
 
 def pinhole_unproject(xy, x0_px: float, y0_px: float, pixel_mm: float, f_mm: float):

@@ -9,7 +9,8 @@
 3. Candidates are re-checked against the catalog pattern's exact ratios and size (the
    size only to the focal-length tolerance), paired star by star (the permutation
    whose edges agree best), rotated by QUEST and verified (:mod:`._verify`'s rules;
-   two stars within the fine gate of one catalog star match neither, as in tracking):
+   two stars within the fine gate of one catalog star match neither, and a pair far
+   outside the frame's own scatter is dropped, as in tracking):
    a match is accepted only when ``n_candidates * P(chance) <= p_false_max``.
 
 Steps 1-3 run in compiled code (:mod:`._ckernels` through :mod:`._kernels`): the same
@@ -27,10 +28,10 @@ import numpy as np
 
 from shipstar.identify import _kernels
 from shipstar.identify import _patterns as pat
-from shipstar.identify._result import Identification, failed_identification
+from shipstar.identify._result import Identification, failed_identification, make_identification
 from shipstar.identify._verify import FINE_GATE
 
-__all__ = ["lost_in_space", "LisOptions"]
+__all__ = ["lost_in_space", "lost_in_space_pinhole", "search_params", "LisOptions"]
 
 #: patterns are looked up in batches: all patterns of the brightest m stars, for these m
 _BATCH_STARS = (5, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 28, 32)
@@ -70,6 +71,30 @@ class LisOptions:
         self.min_matches = int(min_matches)
 
 
+def search_params(db, opts: LisOptions, *, error_rad: float, ftol: float, fit_radial: bool, bounds,
+                  t0: float) -> tuple:
+    """The gates and limits of the compiled search (:func:`._kernels.lis_solve`) for a
+    field with centroid error ``error_rad``, focal tolerance ``ftol`` and image rectangle
+    ``bounds = (y0, y1, z0, z1)`` (tangent plane), started at ``t0`` (perf_counter), in
+    the order of :func:`._kernels.lis_params`."""
+    p = db.params
+    e_edge = 2.0 * _SQRT2 * error_rad
+    y0, y1, z0, z1 = bounds
+    half_diag = math.hypot(max(abs(y0), abs(y1)), max(abs(z0), abs(z1)))   # field.half_diagonal_tan
+    return (opts.min_matches, opts.max_candidates, ftol > 0.0, fit_radial, e_edge,
+            p.pattern_fov_rad * (1.0 + ftol) * 1.001 + e_edge,                     # max_edge
+            p.min_pattern_frac * p.pattern_fov_rad * (1.0 - ftol) - e_edge,        # min_edge
+            2.0 * ftol * half_diag ** 2, ftol, error_rad, half_diag,               # model_tol ..
+            FINE_GATE * error_rad, (y1 - y0) * (z1 - z0), opts.p_false_max,        # gate_fine ..
+            opts.max_time_s - (time.perf_counter() - t0), bounds)
+
+
+def _too_few(n: int, n_use: int, need: int, t0: float) -> Identification:
+    return failed_identification(
+        n, "lost_in_space", f"only {n_use} usable stars: lost-in-space needs at "
+        f"least {need}", time_s=time.perf_counter() - t0)
+
+
 def lost_in_space(field, db, opts: LisOptions) -> Identification:
     """Identify the stars of ``field`` with no prior attitude (see module docstring)."""
     t0 = time.perf_counter()
@@ -85,35 +110,49 @@ def lost_in_space(field, db, opts: LisOptions) -> Identification:
     n_use = t_use.shape[0]
     need = max(4, opts.min_matches)
     if n_use < need:
-        return failed_identification(
-            n, "lost_in_space", f"only {n_use} usable stars: lost-in-space needs at "
-            f"least {need}", time_s=time.perf_counter() - t0)
+        return _too_few(n, n_use, need, t0)
     k = min(n_use, opts.max_pattern_stars, _MAX_PATTERN_STARS)
-    p = db.params
-    ftol = field.focal_tolerance
-    e_edge = 2.0 * _SQRT2 * field.error_rad
-    bounds = field.bounds.tolist()
-    y0, y1, z0, z1 = bounds
-    half_diag = math.hypot(max(abs(y0), abs(y1)), max(abs(z0), abs(z1)))   # field.half_diagonal_tan
-    out = _kernels.lis_solve(
-        t_use, u_use, k, pat.ordered_combinations(k), _batch_ends_array(k), db, n_field=n,
-        usable=usable, min_matches=opts.min_matches, max_candidates=opts.max_candidates,
-        fit=ftol > 0.0, fit_radial=field.fit_radial, e_edge=e_edge,
-        max_edge=p.pattern_fov_rad * (1.0 + ftol) * 1.001 + e_edge,
-        min_edge=p.min_pattern_frac * p.pattern_fov_rad * (1.0 - ftol) - e_edge,
-        model_tol=2.0 * ftol * half_diag ** 2, ftol=ftol, error_rad=field.error_rad,
-        half_diag=half_diag, gate_fine=FINE_GATE * field.error_rad, area0=(y1 - y0) * (z1 - z0),
-        p_false_max=opts.p_false_max, max_time_s=opts.max_time_s - (time.perf_counter() - t0),
-        bounds=bounds)
-    status, C, star_index, hip, n_matched, n_verified, n_patterns, s, k1, p_false, rms = out
+    params = search_params(db, opts, error_rad=field.error_rad, ftol=field.focal_tolerance,
+                           fit_radial=field.fit_radial, bounds=field.bounds.tolist(), t0=t0)
+    status, C, star_index, hip, n_matched, n_verified, n_patterns, s, k1, p_false, rms = \
+        _kernels.lis_solve(t_use, u_use, k, pat.ordered_combinations(k), _batch_ends_array(k), db,
+                           params, n_field=n, usable=usable)
+    u_sensor = None
     if status == 1:
-        return Identification(
-            solved=True, reason="", mode="lost_in_space", C_icrs_from_sensor=C,
-            star_index=star_index, hip=hip,
-            u_sensor=field.u0 if s == 1.0 and k1 == 0.0 else _kernels.unit_rows(field.t, s, k1),
-            n_matched=int(n_matched), p_false=float(p_false), rms_arcsec=float(rms),
-            focal_scale=float(s), radial_k1=float(k1), n_patterns=int(n_patterns),
-            n_candidates=int(n_verified), time_s=time.perf_counter() - t0)
+        u_sensor = field.u0 if s == 1.0 and k1 == 0.0 else _kernels.unit_rows(field.t, s, k1)
+    return _result(status, C, star_index, hip, u_sensor, n_matched, n_verified, n_patterns, s, k1,
+                   p_false, rms, n=n, opts=opts, t0=t0)
+
+
+def lost_in_space_pinhole(xy, cam, error_rad: float, ftol: float, bounds, db,
+                          opts: LisOptions) -> Identification | None:
+    """:func:`lost_in_space` of pixel centroids ``xy (N, 2)`` (float64, C order) of a
+    camera without distortion, ``cam = (x0_px, y0_px, pixel_mm, f_mm)`` with the image
+    rectangle ``bounds`` (tangent plane), in one compiled call: the same search and
+    result as through a :class:`StarField`.  None when a centroid is not finite (the
+    caller builds the field)."""
+    t0 = time.perf_counter()
+    n = xy.shape[0]
+    m = min(n, opts.max_verify_stars)
+    need = max(4, opts.min_matches)
+    if m < need:
+        return None
+    k = min(m, opts.max_pattern_stars, _MAX_PATTERN_STARS)
+    params = search_params(db, opts, error_rad=error_rad, ftol=ftol, fit_radial=False, bounds=bounds,
+                           t0=t0)
+    out = _kernels.lis_pinhole(xy, cam, m, k, pat.ordered_combinations(k), _batch_ends_array(k), db,
+                               params)
+    if out is None:
+        return None
+    return _result(*out, n=n, opts=opts, t0=t0)
+
+
+def _result(status, C, star_index, hip, u_sensor, n_matched, n_verified, n_patterns, s, k1, p_false,
+            rms, *, n: int, opts: LisOptions, t0: float) -> Identification:
+    if status == 1:
+        return make_identification(True, "", "lost_in_space", C, star_index, hip, u_sensor,
+                                   int(n_matched), float(p_false), float(rms), float(s), float(k1),
+                                   int(n_patterns), int(n_verified), time.perf_counter() - t0)
     if status == 2:
         reason = (f"search stopped after {n_verified} candidates / "
                   f"{time.perf_counter() - t0:.3f} s without a verified match")

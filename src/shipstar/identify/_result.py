@@ -9,7 +9,7 @@ import numpy as np
 from shipstar.frames import ra_dec_roll_from_C_icrs_from_sensor
 from shipstar.units import RAD2DEG
 
-__all__ = ["Identification", "failed_identification"]
+__all__ = ["Identification", "failed_identification", "make_identification"]
 
 
 
@@ -83,6 +83,18 @@ class Identification:
     def ra_dec_roll_deg(self) -> tuple[float, float, float]:
         """Boresight RA, Dec and roll (docs/conventions.md) in degrees (NaN if not solved)."""
         return ra_dec_roll_deg(self.solved, self.C_icrs_from_sensor)
+
+
+_FIELDS = tuple(Identification.__dataclass_fields__)
+
+
+def make_identification(*values) -> Identification:
+    """``Identification(*values)`` (the fields in their order) without the frozen
+    dataclass ``__init__``'s one ``object.__setattr__`` per field: every tracked frame
+    builds one."""
+    obj = object.__new__(Identification)
+    obj.__dict__.update(zip(_FIELDS, values))
+    return obj
 
 
 def failed_identification(n: int, mode: str, reason: str, *, n_patterns: int = 0,

@@ -16,7 +16,10 @@
    centroid, a false star) are dropped and the attitude refitted; more mean a biased
    fit: every star is re-paired within shrinking gates and the attitude refitted until
    the pairs settle.  Two stars within the fine gate of one catalog star are
-   ambiguous: neither is matched.
+   ambiguous: neither is matched.  With 8 pairs or more, a pair whose squared residual
+   exceeds 20 times the pairs' upper-quartile one is not matched and the attitude is
+   refitted (the scatter screen of ``_ckernels.c``: a false star inside the fine gate of
+   an undetected star, far outside the frame's own centroid scatter).
 5. **Vote.** When the prior error is comparable to the distance between stars, nearest
    neighbours are mostly wrong and so is their median: if steps 3-4 fail, the shift is
    taken where the offsets of all (star, prediction) pairs within ``g_prior`` cluster
@@ -42,10 +45,10 @@ import time
 import numpy as np
 
 from shipstar.identify import _kernels
-from shipstar.identify._result import Identification, failed_identification
+from shipstar.identify._result import Identification, failed_identification, make_identification
 from shipstar.identify._verify import FINE_GATE
 
-__all__ = ["tracking", "shift_gate"]
+__all__ = ["tracking", "tracking_pinhole", "track_params", "shift_gate"]
 
 # The compiled search (``_ckernels.c``, "Tracking") fixes: 6 attitude fits before the
 # pairs must have settled; pairs beyond the fine gate dropped and refitted (twice at
@@ -134,24 +137,57 @@ def tracking(field, db, C_prior, *, prior_error_rad: float, focal_scale: float =
         return _fail(n, f"only {n_use} usable stars: tracking needs at least {min_matches}", t0)
     if s != 1.0:
         t_use = t_use * s
-    y0, y1, z0, z1 = field.bounds.tolist()
-    box = (0.5 * s * (y0 + y1), 0.5 * s * (z0 + z1), 0.5 * s * (y1 - y0), 0.5 * s * (z1 - z0))
-    half_diag = math.hypot(max(abs(y0), abs(y1)), max(abs(z0), abs(z1)))   # field.half_diagonal_tan
-    err = field.error_rad
-    gate_prior = float(prior_error_rad) + 2.0 * err
-    gate_shift = min(gate_prior, shift_gate(prior_error_rad, half_diag * s, err))
+    params = track_params(field.bounds.tolist(), s, field.error_rad, prior_error_rad, n_use,
+                          min_matches, p_false_max)
     code, count, p, voted, C, star_index, hip, n_matched, p_false, rms = _kernels.track_solve(
-        t_use, w_use, C_prior, db, n_field=n, usable=usable, min_matches=min_matches,
-        n_trials=n_use - 2, box=box,
-        gate=FINE_GATE * err, gate_prior=gate_prior, gate_shift=gate_shift,
-        area=(y1 - y0) * (z1 - z0) * s * s, limit=p_false_max)
+        t_use, w_use, C_prior, db, params, n_field=n, usable=usable)
     if stats is not None:
         stats["voted"] = voted
     if code:
-        return _fail(n, _reason(code, count, p, gate_prior, p_false_max), t0)
+        return _fail(n, _reason(code, count, p, params[4], p_false_max), t0)
     return Identification(
         solved=True, reason="", mode="tracking", C_icrs_from_sensor=C, star_index=star_index,
         hip=hip, u_sensor=field.unit(s), n_matched=int(n_matched), p_false=float(p_false),
         rms_arcsec=float(rms), focal_scale=s, radial_k1=0.0,
         n_patterns=0, n_candidates=1, time_s=time.perf_counter() - t0,
     )
+
+
+def track_params(bounds, s: float, err: float, prior_error_rad: float, n_use: int, min_matches: int,
+                 p_false_max: float) -> tuple:
+    """The gates of the compiled tracking (:func:`._kernels.track_solve`) for the image
+    rectangle ``bounds = (y0, y1, z0, z1)`` (tangent plane at scale 1), focal scale ``s``,
+    centroid error ``err`` and prior error (rad), with ``n_use`` usable stars:
+    ``(min_matches, n_trials, box (cy, cz, hy, hz), gate, gate_prior, gate_shift, area,
+    limit)``."""
+    y0, y1, z0, z1 = bounds
+    box = (0.5 * s * (y0 + y1), 0.5 * s * (z0 + z1), 0.5 * s * (y1 - y0), 0.5 * s * (z1 - z0))
+    half_diag = math.hypot(max(abs(y0), abs(y1)), max(abs(z0), abs(z1)))   # field.half_diagonal_tan
+    gate_prior = float(prior_error_rad) + 2.0 * err
+    return (min_matches, n_use - 2, box, FINE_GATE * err, gate_prior,
+            min(gate_prior, shift_gate(prior_error_rad, half_diag * s, err)),
+            (y1 - y0) * (z1 - z0) * s * s, p_false_max)
+
+
+def tracking_pinhole(xy, cam, error_rad: float, bounds, db, C_prior, *, prior_error_rad: float,
+                     p_false_max: float = 1e-6, min_matches: int = 3,
+                     max_verify_stars: int = 60) -> Identification | None:
+    """:func:`tracking` at focal scale 1 of pixel centroids ``xy (N, 2)`` (float64, C
+    order) of a camera without distortion, ``cam = (x0_px, y0_px, pixel_mm, f_mm)``,
+    with the image rectangle ``bounds`` (tangent plane), in one compiled call: the same
+    result as through a :class:`StarField`.  None when a centroid is not finite or there
+    are fewer than ``min_matches`` stars (the caller builds the field)."""
+    t0 = time.perf_counter()
+    n = xy.shape[0]
+    m = min(n, max_verify_stars, 64)
+    if m < min_matches:
+        return None
+    params = track_params(bounds, 1.0, error_rad, prior_error_rad, m, min_matches, p_false_max)
+    out = _kernels.track_pinhole(xy, cam, m, C_prior, db, params)
+    if out is None:
+        return None
+    code, count, p, voted, C, star_index, hip, u, n_matched, p_false, rms = out
+    if code:
+        return _fail(n, _reason(code, count, p, params[4], p_false_max), t0)
+    return make_identification(True, "", "tracking", C, star_index, hip, u, n_matched, p_false, rms,
+                               1.0, 0.0, 0, 1, time.perf_counter() - t0)
