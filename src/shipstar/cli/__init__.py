@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import pkgutil
 import sys
 import warnings
 
@@ -41,10 +40,19 @@ def _command_modules(only=None):
     command's dependencies; the parser is rebuilt in full if it does not register it)."""
     import shipstar.cli as pkg
 
-    names = sorted(m.name for m in pkgutil.iter_modules(pkg.__path__) if m.name.startswith("_cmd_"))
     if only is not None:
         mine = "_cmd_" + only.replace("-", "_")
-        names = [n for n in names if n == mine]
+        if not mine.isidentifier():
+            return []
+        try:
+            return [importlib.import_module(f"shipstar.cli.{mine}")]
+        except ModuleNotFoundError as exc:
+            if exc.name != f"shipstar.cli.{mine}":
+                raise
+            return []
+    import pkgutil
+
+    names = sorted(m.name for m in pkgutil.iter_modules(pkg.__path__) if m.name.startswith("_cmd_"))
     return [importlib.import_module(f"shipstar.cli.{n}") for n in names]
 
 

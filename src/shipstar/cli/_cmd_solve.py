@@ -236,8 +236,6 @@ def _solve_one(args, item, prior):
 
 
 def run(args) -> int:
-    from shipstar.cli._header_checks import print_overrides
-
     _check_args(args)
     many = len(args.inputs) > 1
     prior = None
@@ -245,6 +243,8 @@ def run(args) -> int:
     for item in args.inputs:
         record = _header_record(args, item)
         if record:
+            from shipstar.cli._header_checks import print_overrides
+
             print_overrides("solve", record)
         res = _solve_one(args, item, prior)
         if args.track and res.solved:

@@ -10,13 +10,20 @@ import os
 import sys
 from pathlib import Path
 
-from shipstar._atomic import atomic_write_text  # noqa: F401  (re-exported for commands)
 from shipstar.errors import ShipstarError
 
 __all__ = ["finite_float", "angle_deg", "in_range", "latitude_deg", "longitude_deg", "deflection_arcsec", "fraction", "positive_float",
            "int_in_range", "float_in_range", "rng_seed", "add_site_arguments", "add_weather_arguments",
            "add_refraction_arguments", "add_date_obs_is_argument", "REFRACTION_MODELS", "emit_json", "atomic_write_text", "check_output_file", "check_output_dir", "accuracy_warnings",
            "one_line"]
+
+
+def atomic_write_text(path, text: str, *, newline: str | None = None, what: str = "") -> Path:
+    """:func:`shipstar._atomic.atomic_write_text`, imported on first use (its ``tempfile``
+    is not needed by ``shipstar solve``)."""
+    from shipstar._atomic import atomic_write_text as write
+
+    return write(path, text, newline=newline, what=what)
 
 
 def finite_float(text: str) -> float:

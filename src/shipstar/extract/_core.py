@@ -16,7 +16,6 @@ from shipstar.extract._background import estimate_mesh
 from shipstar.extract._point import component_stats, detect_objects, measure_points
 from shipstar.extract._result import Extraction
 from shipstar.extract._smear import STREAK_MIN_PX, frame_smear
-from shipstar.extract._smeared import extract_smeared
 
 __all__ = ["extract_stars", "STREAK_MIN_PX"]
 
@@ -172,6 +171,8 @@ def extract_stars(image, *, threshold_sigma=5.0, max_stars=None, refine="gaussia
     sigma_given = None if psf_sigma_px is None else float(psf_sigma_px)
     if hint is not None and math.hypot(*hint) >= STREAK_MIN_PX and sigma_given and inv_gain:
         # everything known: straight to the streaks (no segmentation of the frame needed)
+        from shipstar.extract._smeared import extract_smeared   # (not loaded for point sources)
+
         res, sigma = extract_smeared(arr, mesh, None, hint, sigma_given, inv_gain, saturation,
                                      float(threshold_sigma), refine)
         return _result(res, mesh, sigma, arr.shape, max_stars, hint)
@@ -180,6 +181,8 @@ def extract_stars(image, *, threshold_sigma=5.0, max_stars=None, refine="gaussia
     sat_mask = (arr >= saturation) if (hint is None and n_sat) else None
     smear, sigma_s, gain_s = frame_smear(arr, mesh, stats, hint, sigma_given, inv_gain, sat_mask)
     if smear is not None:
+        from shipstar.extract._smeared import extract_smeared
+
         res, sigma = extract_smeared(arr, mesh, stats, smear, sigma_s, gain_s, saturation, float(threshold_sigma),
                                      refine)
         return _result(res, mesh, sigma, arr.shape, max_stars, smear)

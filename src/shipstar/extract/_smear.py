@@ -28,21 +28,6 @@ from shipstar.extract._detect import sum_dtype
 from shipstar.extract._fit import _spd_inverse, inv_gain_from_residuals
 from shipstar.extract._point import bright_objects, component_stats, detect_objects
 from shipstar.extract._result import FLAG_EDGE
-from shipstar.extract._streak import (
-    BG,
-    DX,
-    DY,
-    FLUX,
-    SIGMA,
-    X,
-    Y,
-    fit_streaks,
-    gather_streak_windows,
-    path_points,
-    start_parameters,
-    streak_half_sizes,
-    streak_normal_equations,
-)
 
 __all__ = ["STREAK_MIN_PX", "FIELD_MIN_PX", "smear_from_moments", "binned_guess", "calibrate", "frame_smear",
            "AffineField", "smear_field"]
@@ -132,6 +117,10 @@ def calibrate(image, mesh, bad, col, row, smear, sigma, inv_gain, *, fit_smear):
     nothing converges; ``n`` objects whose fits gave the smear and the median distance of
     their smear vectors from the median one, px (``inf`` without ``fit_smear``).
     """
+    # the streak fits are imported here: a frame of point sources never needs them
+    from shipstar.extract._streak import (BG, DX, SIGMA, fit_streaks, gather_streak_windows, path_points,
+                                          start_parameters, streak_half_sizes, streak_normal_equations)
+
     fit_sigma = sigma is None
     sigma0 = 1.0 if fit_sigma else float(sigma)
     sigma_out, gain_out = sigma, inv_gain
@@ -225,6 +214,8 @@ def smear_field(win, p, ok, snr, nodes, inv_gain, smear):
     errors. None if fewer than 4 stars converge or the smear is shorter than
     ``FIELD_MIN_PX``.
     """
+    from shipstar.extract._streak import BG, DX, DY, FLUX, X, Y, streak_normal_equations
+
     if float(np.hypot(*smear)) < FIELD_MIN_PX:
         return None
     pick = np.flatnonzero(ok & (snr >= _FIELD_SNR))

@@ -231,11 +231,12 @@ def solve_image(image, camera=None, fov_deg=None, *, fov_tolerance=None, mag_lim
     prior_error_deg : float
         Bound on the attitude change since ``prior``.
     """
-    from shipstar._fitsio import DATE_OBS_CHOICES
+    if date_obs_is != "start":                  # the default: no FITS reader loaded for a JPEG
+        from shipstar._fitsio import DATE_OBS_CHOICES
 
-    if date_obs_is not in DATE_OBS_CHOICES:
-        raise ShipstarError(f"date_obs_is must be one of {', '.join(DATE_OBS_CHOICES)}, "
-                            f"got {date_obs_is!r}")
+        if date_obs_is not in DATE_OBS_CHOICES:
+            raise ShipstarError(f"date_obs_is must be one of {', '.join(DATE_OBS_CHOICES)}, "
+                                f"got {date_obs_is!r}")
     camera = _resolve_camera(camera)
     if camera is not None and fov_deg is not None:
         raise ShipstarError("give at most one of camera and fov_deg (neither: blind solve)")

@@ -15,7 +15,6 @@ import weakref
 
 import numpy as np
 
-from shipstar.attitude import quest_single
 from shipstar.identify import _skygrid
 from shipstar.units import RAD2ASEC as _RAD2ASEC
 
@@ -94,6 +93,8 @@ def wahba(w_body, v_ref, C_near=None) -> np.ndarray:
     then never needs its sequential rotations (which it takes when the attitude is more
     than ~145 deg from the identity) and is ~2x faster.
     """
+    from shipstar.attitude import quest_single      # not at import: `shipstar solve` runs the C kernels
+
     if C_near is None:
         return quest_single(w_body, v_ref)
     return C_near @ quest_single(w_body, v_ref @ C_near)
