@@ -19,8 +19,15 @@ that its sensors determine: A1 pitch, A2 roll, both for the fusions; heading and
 single sensors' weak angles are printed for information), and 0.8 <= RMS(err/sigma)
 <= 1.25 for every angle of every method at 10 and 60 ms (30 ms printed, checked too).
 
+``--fit-model-fraction`` also fits, per exposure, the fraction of the streak correction
+that the corrected frames' errors show beyond their statistical covariance (maximum
+likelihood, ``err ~ N(0, P + f^2 d d^T)``): how ``pipeline._exposure.STREAK_MODEL_FRACTION``
+was measured.  ``--floor-px`` sets ``PipelineOptions.centroid_floor_px`` and
+``--model-fraction`` overrides the fraction, to compare.
+
 Run: ``python benchmarks/bench_streaks.py [--exposures-ms 10,30,60] [--duration-s 24]
-[--seed 0] [--a2-offset-s 0] [--no-streak-correction]``.  Default run (24 s, 3 roll periods): ~2-4 minutes on a
+[--seed 0] [--a2-offset-s 0] [--no-streak-correction] [--fit-model-fraction] [--floor-px F]
+[--model-fraction F]``.  Default run (24 s, 3 roll periods): ~2-4 minutes on a
 shared 2-core machine (rendering the 60 ms frames is most of it).
 """
 
@@ -102,6 +109,56 @@ def slopes(t, err, motion):
     return out
 
 
+def frame_rows(res, spec, skip_s):
+    """Per corrected single-sensor frame: (err (3,), statistical covariance (3, 3), model
+    covariance (3, 3)), sensor axes, rad; ``err`` the rotation vector of ``C_true^T C_est``."""
+    from shipstar.pipeline._exposure import rotation_vector_rad
+
+    j1, j2 = spec.utc_jd(0.0)
+    out = []
+    for s, frs in zip(spec.sensors, res.frames):
+        for fr in frs:
+            t = fr.seconds_since(j1, j2)
+            if not fr.solved or fr.model_covariance_rad2 is None or t < skip_s:
+                continue
+            C_true = spec.motion.C_hor_from_deck(t) @ s.C_deck_from_sensor
+            M = fr.model_covariance_rad2
+            out.append((rotation_vector_rad(C_true.T @ fr.horizontal.C_hor_from_sensor),
+                        fr.horizontal.covariance_rad2 - M, M))
+    return out
+
+
+def fit_model_fraction(res, spec, configs, skip_s):
+    """Maximum-likelihood fraction ``f`` of the streak correction that the frames' errors show
+    beyond their statistical covariance: ``err ~ N(0, s P + f^2 d d^T)`` per frame (``d`` the
+    attitude change the correction made, ``s`` a free scale of the statistical part), over
+    both sensors' corrected frames.  Printed with the fit at ``s = 1``."""
+    from shipstar.pipeline import _exposure
+
+    rows = frame_rows(res, spec, skip_s)
+    f0 = _exposure.STREAK_MODEL_FRACTION
+    E = np.array([r[0] for r in rows])
+    P = np.array([r[1] for r in rows])
+    D = np.array([r[2] for r in rows]) / (f0 * f0 if f0 > 0 else 1.0)      # d d^T
+
+    def nll(s, f):
+        C = s * P + f * f * D
+        sign, logdet = np.linalg.slogdet(C)
+        return float(np.sum(logdet + np.einsum("ni,ni->n", E, np.linalg.solve(C, E[:, :, None])[:, :, 0])))
+
+    fs = np.linspace(0.0, 0.4, 81)
+    ss = np.linspace(0.5, 2.0, 61)
+    grid = np.array([[nll(s, f) for f in fs] for s in ss])
+    i, j = np.unravel_index(np.argmin(grid), grid.shape)
+    at1 = np.array([nll(1.0, f) for f in fs])
+    k = int(np.argmin(at1))
+    # 1-sigma interval of f at s = 1: nll within 0.5 (the nll above is -2 log L, so 1.0)
+    inside = fs[at1 <= at1[k] + 1.0]
+    print(f"model fraction fit over {len(E)} frames: f = {fs[j]:.3f} with scale {ss[i]:.2f}; "
+          f"f = {fs[k]:.3f} [{inside.min():.3f}, {inside.max():.3f}] at scale 1 "
+          f"(median turn {np.median(np.sqrt(np.einsum('nii->n', D))) * RAD2ASEC:.2f}'')")
+
+
 def run_exposure(args, T):
     spec = sea_session(seed=args.seed, duration_s=args.duration_s, exposure_s=T)
     if args.a2_offset_s:
@@ -113,7 +170,8 @@ def run_exposure(args, T):
     configs = [SensorConfig(s.name, s.camera.replace(exposure_s=T),
                             Installation.from_matrix(s.name, s.camera.name, s.C_deck_from_sensor))
                for s in spec.sensors]
-    opt = PipelineOptions(streak_correction=not args.no_streak_correction)
+    opt = PipelineOptions(streak_correction=not args.no_streak_correction,
+                          **({} if args.floor_px is None else {"centroid_floor_px": args.floor_px}))
     t1 = time.perf_counter()
     res = process_session(configs, frames, track, weather, opt)
     t_proc = time.perf_counter() - t1
@@ -140,6 +198,8 @@ def run_exposure(args, T):
                 b = sl[k][2] if a == "roll" else sl[k][0]
                 checks.append((f"{m} {a} slope vs {a} acc {b:+.3f} ''/(deg/s^2), |.| < {SLOPE_TARGET}",
                                abs(b) < SLOPE_TARGET))
+    if args.fit_model_fraction:
+        fit_model_fraction(res, spec, configs, args.skip_s)
     corr = [fr.streak_correction_arcsec for frs in res.frames for fr in frs if fr.solved]
     corr = np.array([c for c in corr if np.isfinite(c)])
     n_unsolved = sum(not fr.solved for frs in res.frames for fr in frs)
@@ -156,7 +216,16 @@ def main():
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--a2-offset-s", type=float, default=0.0)
     ap.add_argument("--no-streak-correction", action="store_true")
+    ap.add_argument("--floor-px", type=float, default=None, help="PipelineOptions.centroid_floor_px (default: its own)")
+    ap.add_argument("--model-fraction", type=float, default=None,
+                    help="override _exposure.STREAK_MODEL_FRACTION (to derive it)")
+    ap.add_argument("--fit-model-fraction", action="store_true",
+                    help="fit the streak model's fraction to the frames' errors (truth)")
     args = ap.parse_args()
+    if args.model_fraction is not None:
+        from shipstar.pipeline import _exposure
+
+        _exposure.STREAK_MODEL_FRACTION = args.model_fraction
     t0 = time.perf_counter()
     results = []
     for ms in (float(x) for x in args.exposures_ms.split(",")):

@@ -277,7 +277,10 @@ def test_the_noise_floor_follows_the_seeing(tmp_path):
     spec0, root0 = _render(tmp_path / "clean", "dock", 0.3, None)
     proc0, rows0 = _run(spec0, root0)
     cam = spec0.sensors[0].camera
-    assert proc0.noise_floor_arcsec == pytest.approx(0.03 * cam.pixel_mm / cam.f_mm * RAD2ASEC)     # the options' floor
+    from shipstar.pipeline import PipelineOptions
+
+    base_px = PipelineOptions().centroid_floor_px
+    assert proc0.noise_floor_arcsec == pytest.approx(base_px * cam.pixel_mm / cam.f_mm * RAD2ASEC)  # the options' floor
     h0 = rows0[-1][0].horizontal
     assert np.median(h.sigma_rad[h.inliers]) > 2.0 * np.median(h0.sigma_rad[h0.inliers])
 

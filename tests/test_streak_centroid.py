@@ -80,3 +80,71 @@ def test_model_scales_only_the_along_streak_part():
     np.testing.assert_allclose(fitted - np.einsum("ij,ij->i", fitted, e)[:, None] * e,
                                plain - np.einsum("ij,ij->i", plain, e)[:, None] * e, atol=1e-18)
     np.testing.assert_array_equal(exposure_mean_offset(w, omega, alpha, T, StreakModel()), plain)
+
+
+def _rot(e):
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(e).as_matrix()
+
+
+def test_streak_model_covariance_is_the_fraction_of_the_correction_fully_correlated():
+    """Analytic case: an attitude turned by the correction's rotation vector d (scipy's
+    rotation) gives fraction^2 d d^T, rank 1, with the fraction of the module by default."""
+    from shipstar.pipeline._exposure import STREAK_MODEL_FRACTION, rotation_vector_rad, streak_model_covariance
+
+    C0 = _rot([0.3, -1.1, 0.7])
+    d = np.radians(np.array([2.0, -0.5, 1.2]) / 3600)
+    C1 = C0 @ _rot(d)
+    np.testing.assert_allclose(rotation_vector_rad(C0.T @ C1), d, rtol=1e-9, atol=1e-18)
+    np.testing.assert_allclose(rotation_vector_rad(_rot([0.2, -0.1, 0.05])), [0.2, -0.1, 0.05], rtol=1e-12)
+    np.testing.assert_allclose(streak_model_covariance(C0, C1, 0.1), 0.01 * np.outer(d, d), rtol=1e-8, atol=1e-30)
+    M = streak_model_covariance(C0, C1)
+    np.testing.assert_allclose(M, STREAK_MODEL_FRACTION ** 2 * np.outer(d, d), rtol=1e-8, atol=1e-30)
+    assert np.linalg.matrix_rank(M / np.max(M), tol=1e-9) == 1
+    assert np.all(streak_model_covariance(C0, C0) == 0.0)
+
+
+def test_joint_covariance_carries_each_sensors_common_mode_error_as_monte_carlo_shows():
+    """Two sensors whose stars (noise free) are all turned together by a random rotation
+    drawn from each sensor's model covariance: the joint solutions' scatter (500 draws, the
+    solver itself) is the covariance fuse_joint adds for it, to its sampling error."""
+    from shipstar.ship import SensorStars, fuse_joint, ship_angles_jacobian
+
+    rng = np.random.default_rng(3)
+    C_hd = _rot([0.02, 0.5, -0.03])
+    sensors = []
+    for az, n in ((np.radians(185.0), 25), (np.radians(275.0), 12)):
+        C_ds = _rot([0.0, -az, 0.0]) @ _rot([0.0, 0.0, np.radians(38.0)])
+        w = np.c_[np.ones(n), rng.uniform(-0.07, 0.07, (n, 2))]
+        w /= np.linalg.norm(w, axis=1)[:, None]
+        sensors.append((C_ds, w, (C_hd @ C_ds @ w.T).T))
+    sigma = np.radians(1.0 / 3600)
+    L_model = [np.radians(np.array([[1.5, 0, 0], [0.4, 0.3, 0], [0.0, -0.2, 0.6]]) / 3600),
+               np.radians(np.array([[0.5, 0, 0], [0.0, 0.8, 0], [0.3, 0.0, 0.2]]) / 3600)]
+    M = [L @ L.T for L in L_model]
+
+    def stars(turns, model):
+        return [SensorStars(w @ _rot(d).T, v, C_ds, sigma, model_covariance_rad2=m)
+                for (C_ds, w, v), d, m in zip(sensors, turns, model)]
+
+    base = fuse_joint(stars([np.zeros(3)] * 2, [None, None]))
+    with_model = fuse_joint(stars([np.zeros(3)] * 2, M))
+    added = with_model.covariance_rad2 - base.covariance_rad2
+    J = ship_angles_jacobian(C_hd)
+    errs = []
+    for _ in range(500):
+        sol = fuse_joint(stars([L @ rng.standard_normal(3) for L in L_model], [None, None]), reject_outliers=False)
+        errs.append(J @ _rotvec_between(C_hd, sol.C_hor_from_deck))
+    emp = np.cov(np.array(errs).T)
+    sd = np.sqrt(np.diag(added))
+    assert np.all(sd > 0.05 * np.sqrt(np.diag(base.covariance_rad2)))
+    # 500 draws: a variance to ~6 %, a correlation to ~0.05
+    np.testing.assert_allclose(np.sqrt(np.diag(emp)), sd, rtol=0.1)
+    np.testing.assert_allclose(emp / np.outer(sd, sd), added / np.outer(sd, sd), atol=0.12)
+
+
+def _rotvec_between(C_true, C_est):
+    from shipstar.pipeline._exposure import rotation_vector_rad
+
+    return rotation_vector_rad(np.asarray(C_true).T @ np.asarray(C_est))

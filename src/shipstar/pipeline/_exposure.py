@@ -32,11 +32,18 @@ import numpy as np
 
 from shipstar.units import RAD2ASEC
 
-__all__ = ["MIN_CORRECTION_ARCSEC", "exposure_mean_offset", "mid_exposure_vectors", "streak_corrected",
-           "streak_along_factor", "StreakModel"]
+__all__ = ["MIN_CORRECTION_ARCSEC", "STREAK_MODEL_FRACTION", "exposure_mean_offset", "mid_exposure_vectors",
+           "rotation_vector_rad", "streak_corrected", "streak_along_factor", "streak_model_covariance",
+           "with_model_covariance", "StreakModel"]
 
 #: A frame is solved again only when the correction turns a star by more than this.
 MIN_CORRECTION_ARCSEC = 0.01
+#: Uncertainty of the streak correction of extracted frames, as a fraction of the attitude
+#: change it makes (1 sigma, fully correlated over the frame's stars):
+#: :func:`streak_model_covariance`.  Measured against the truth with ``benchmarks/bench_streaks.py
+#: --fit-model-fraction`` (60 ms, 24 s: 0.095 and 0.090 with seeds 0 and 1; below 0.045 at
+#: 30 ms), docs/pipeline.md, *Honest sigmas*.
+STREAK_MODEL_FRACTION = 0.09
 
 
 def streak_along_factor(length_px, psf_sigma_px: float) -> np.ndarray:
@@ -174,6 +181,41 @@ def mid_exposure_vectors(w_mean, omega_rad_per_s, alpha_rad_per_s2, exposure_s: 
     return mid, 2.0 * np.arcsin(np.minimum(0.5 * chord, 1.0))
 
 
+def rotation_vector_rad(C) -> np.ndarray:
+    """Rotation vector (3,) of a rotation matrix ``C`` (3, 3) within a few degrees of the
+    identity: ``C = exp([e]x)``."""
+    C = np.asarray(C, float)
+    v = 0.5 * np.array([C[2, 1] - C[1, 2], C[0, 2] - C[2, 0], C[1, 0] - C[0, 1]])
+    s = float(np.linalg.norm(v))
+    if s == 0.0:
+        return v
+    return v * (np.arctan2(s, 0.5 * (np.trace(C) - 1.0)) / s)
+
+
+def streak_model_covariance(C_before, C_after, fraction: float = None) -> np.ndarray:
+    """Covariance (3, 3, rad^2, sensor axes) that the streak model's error adds to a
+    corrected frame's attitude.
+
+    The correction's error is common to the frame's stars (the same rate, acceleration
+    and streak model turn them all), so it does not average down over them, and the
+    residuals do not show it (a common turn of the field is absorbed by the attitude).
+    It is taken as ``fraction`` (default :data:`STREAK_MODEL_FRACTION`, 1 sigma) of the
+    correction itself, fully correlated: with ``d`` the rotation vector of
+    ``C_before^T C_after`` (the attitude change the correction made, sensor axes),
+    ``fraction^2 d d^T``.  The correction is linear in the stars' shifts, so ``d`` is
+    the same linear map of them as the solver applies (docs/pipeline.md, *Streaks*).
+
+    Parameters
+    ----------
+    C_before, C_after : (3, 3) arrays
+        ``C_hor_from_sensor`` solved from the measured and from the corrected directions.
+    fraction : float, optional
+    """
+    f = STREAK_MODEL_FRACTION if fraction is None else float(fraction)
+    d = rotation_vector_rad(np.asarray(C_before, float).T @ np.asarray(C_after, float))
+    return f * f * np.outer(d, d)
+
+
 def streak_corrected(fr, omega_sensor_rad_per_s, alpha_sensor_rad_per_s2, installation, options,
                      model: StreakModel | None = None):
     """A solved frame turned to its mid-exposure directions and solved again (or ``fr``
@@ -198,4 +240,22 @@ def streak_corrected(fr, omega_sensor_rad_per_s, alpha_sensor_rad_per_s2, instal
     largest_arcsec = float(np.max(turn)) * RAD2ASEC if len(turn) else 0.0
     if largest_arcsec <= MIN_CORRECTION_ARCSEC:
         return fr
-    return resolve_frame(fr, w_mid, installation, options, largest_arcsec)
+    out = resolve_frame(fr, w_mid, installation, options, largest_arcsec)
+    if not out.solved or model is None or not model.fitted:       # given time averages: no streak model
+        return out
+    return with_model_covariance(out, streak_model_covariance(fr.horizontal.C_hor_from_sensor,
+                                                              out.horizontal.C_hor_from_sensor), installation)
+
+
+def with_model_covariance(fr, cov_rad2, installation):
+    """``fr`` (solved) whose attitude covariance gains the frame-level ``cov_rad2`` (3, 3,
+    sensor axes; :func:`streak_model_covariance`), recorded apart as
+    ``fr.model_covariance_rad2`` for the joint solution (its stars' weights cannot carry it)."""
+    from dataclasses import replace
+
+    from shipstar.pipeline._sensor import ship_from_horizontal
+
+    h = fr.horizontal
+    h = replace(h, covariance_rad2=h.covariance_rad2 + cov_rad2)
+    return replace(fr, horizontal=h, ship=ship_from_horizontal(h, installation),
+                   model_covariance_rad2=np.asarray(cov_rad2, float))

@@ -35,8 +35,12 @@ class PipelineOptions:
         per-star Cramer-Rao sigma.
     centroid_floor_px : float
         Added in quadrature to the extraction's per-star sigma (systematic floor); the
-        floor estimated from recent residuals (seeing, ``pipeline._conditions``) replaces it
-        when larger.
+        floor estimated from recent residuals (seeing, pixel response, calibration:
+        ``pipeline._conditions.NoiseFloor``) replaces it when larger.  The default 0.005 px
+        is what the extraction itself needs (its brightest stars' Cramer-Rao sigma is
+        0.005 px; the estimate's scatter about a zero floor is +-0.003 px): 0.03 px gave the
+        brightest stars too little weight, their sigmas 1.3x too large and the
+        attitude 1.3-1.7x less accurate in image-level sessions (docs/pipeline.md, *Streaks*).
     threshold_sigma : float
         Star detection threshold (``shipstar.extract.extract_stars``).
     identify_error_px : float
@@ -62,7 +66,7 @@ class PipelineOptions:
     refraction_model: str = "erfa"
     refraction: str = "per-star"
     centroid_sigma_px: float | None = None
-    centroid_floor_px: float = 0.03
+    centroid_floor_px: float = 0.005
     threshold_sigma: float = 5.0
     identify_error_px: float = 1.0
     prior_error_deg: float = 0.5

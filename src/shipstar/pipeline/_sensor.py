@@ -162,6 +162,10 @@ class FrameResult:
     noise_floor_arcsec : float
         The sensor's per-star noise floor (seeing, :class:`~shipstar.pipeline._conditions.NoiseFloor`)
         estimated after this frame, arcsec; NaN for an unsolved frame.
+    model_covariance_rad2 : ndarray (3, 3) or None
+        The part of ``horizontal.covariance_rad2`` that is common to the frame's stars (the
+        streak model's error, :func:`shipstar.pipeline._exposure.streak_model_covariance`),
+        sensor axes; None when the frame was not streak-corrected.
     """
 
     sensor: str
@@ -185,6 +189,7 @@ class FrameResult:
     solve_inputs: _SolveInputs | None = field(default=None, repr=False)
     time_source: str = ""
     noise_floor_arcsec: float = math.nan
+    model_covariance_rad2: np.ndarray | None = field(default=None, repr=False)
 
     @classmethod
     def failed(cls, sensor: str, index: int, frame, reason: str) -> "FrameResult":
@@ -229,12 +234,14 @@ class FrameResult:
         keep = h.inliers
         w = h.w_sensor[keep]
         info = None if h.info_per_rad2 is None else h.info_per_rad2[keep]
+        model = self.model_covariance_rad2
         if C_sensor_correction is not None:
             R = np.asarray(C_sensor_correction, float)
             w = w @ R.T
             info = None if info is None else R @ info @ R.T
+            model = None if model is None else R @ model @ R.T
         return SensorStars(w_sensor=w, v_hor=h.v_hor[keep], C_deck_from_sensor=C_deck_from_sensor,
-                           sigma_rad=h.sigma_rad[keep], info_per_rad2=info)
+                           sigma_rad=h.sigma_rad[keep], info_per_rad2=info, model_covariance_rad2=model)
 
 
 def direction_info(camera, xy_px, cov_px2, shape=None, w_sensor=None):
