@@ -88,11 +88,14 @@ def realistic_session():
 def test_summary_has_availability_and_seeing(realistic_session):
     res, truth = realistic_session
     s = session_summary(res, truth)
+    cams = {x.name: x.camera for x in sea_session(duration_s=1.0).sensors}
     assert set(s["availability"]) == {"A1", "A2"}
     for name, a in s["availability"].items():
         assert a["n_frames"] == s["sensors"][name]["n_frames"]
         assert a["n_solved"] + sum(a["unsolved_by_reason"].values()) == a["n_frames"]
-        assert s["seeing"][name]["noise_floor_arcsec"] > 0.5          # never below the centroid floor
+        cam = cams[name]                                               # never below the centroid floor
+        floor_arcsec = PipelineOptions().centroid_floor_px * cam.pixel_mm / cam.f_mm * 180 / math.pi * 3600
+        assert s["seeing"][name]["noise_floor_arcsec"] >= floor_arcsec * (1 - 1e-9)
     json.dumps(s, allow_nan=False)
 
 

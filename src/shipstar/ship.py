@@ -18,7 +18,8 @@ covariance about the deck (body) axes with the analytic Jacobian of the angle ex
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
+from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 import numpy as np
@@ -99,6 +100,15 @@ class SensorStars:
         Per-star information matrices of ``w_sensor`` (sensor frame, rad^-2) when the errors
         differ between the two axes across a direction (streaks); the joint solution then
         weights each axis by its own error.  ``sigma_rad`` still sets the outlier threshold.
+    model_covariance_rad2 : ndarray, shape (3, 3), optional
+        An error common to all these stars (sensor axes, rad^2: the streak model's,
+        ``pipeline._exposure.streak_model_covariance``), which no per-star weight can
+        carry; the joint covariance gains it through the weight the sensor has in the
+        solution.
+    mount_covariance_rad2 : ndarray, shape (3, 3), optional
+        The uncertainty of the installation these stars are carried with (deck axes, rad^2:
+        a flexing mount's estimate, ``pipeline._mounts``), a rotation common to all of them;
+        the joint solution weights the sensor accordingly (:func:`_with_mount_errors`).
     """
 
     w_sensor: np.ndarray
@@ -106,6 +116,8 @@ class SensorStars:
     C_deck_from_sensor: np.ndarray
     sigma_rad: float | np.ndarray
     info_per_rad2: np.ndarray | None = None
+    model_covariance_rad2: np.ndarray | None = None
+    mount_covariance_rad2: np.ndarray | None = None
 
 
 def ship_angles_jacobian(C_hor_from_deck) -> np.ndarray:
@@ -262,4 +274,91 @@ def fuse_joint(sensors: Sequence[SensorStars], *, reject_outliers: bool = True) 
                          info_per_rad2=np.concatenate(info) if anisotropic else None)
     if not sol.solved:
         return ShipAttitude.failed(sol.reason, "joint")
-    return _from_C(sol.C_ref_from_body, sol.covariance_rad2, "joint", int(sol.n_used))
+    C_new, P_new = _with_mount_errors(sensors, sol, np.concatenate(w_deck), v_all, np.concatenate(info))
+    if C_new is not None:
+        sol = replace(sol, C_ref_from_body=C_new, covariance_rad2=P_new)
+    cov = sol.covariance_rad2 + _common_mode_covariance(sensors, sol, np.concatenate(info), sig_all, w_all)
+    return _from_C(sol.C_ref_from_body, cov, "joint", int(sol.n_used))
+
+
+def _with_mount_errors(sensors, sol, w_deck, v_hor, info):
+    """The joint solution with the sensors' mount uncertainties eliminated, or (None, None).
+
+    A mount error ``m_s`` (covariance ``M_s``, ``SensorStars.mount_covariance_rad2``, deck
+    axes) turns all of sensor ``s``'s stars together.  Taken as a nuisance rotation of that
+    sensor and eliminated from the normal equations at the joint solution, the sensor's
+    information ``F_s`` (of its inlier stars, about the deck axes) becomes
+    ``F_s' = F_s (I + M_s F_s)^-1`` and its gradient ``h_s`` becomes ``(I + F_s M_s)^-1 h_s``
+    (the same single-sensor step ``F_s^-1 h_s``, weighted by ``(F_s^-1 + M_s)^-1``).  One
+    Gauss-Newton step from the joint solution gives the attitude, ``(sum F_s')^-1`` its
+    covariance (scaled as the solver scaled its own).  With every ``M_s`` zero it is the
+    joint solution; with ``M_s`` large the sensor no longer pulls the attitude.
+    """
+    from shipstar.attitude._solve import _rotation_from_vector, _skew
+
+    if not any(s.mount_covariance_rad2 is not None for s in sensors) or sol.inliers is None:
+        return None, None
+    C = np.asarray(sol.C_ref_from_body, float)
+    W_all = info if sol.info_per_rad2 is None else np.asarray(sol.info_per_rad2, float)
+    F_tot, F_new, h_new = np.zeros((3, 3)), np.zeros((3, 3)), np.zeros(3)
+    start = 0
+    for s in sensors:
+        n = np.atleast_2d(np.asarray(s.w_sensor, float)).shape[0]
+        keep = np.flatnonzero(np.asarray(sol.inliers, bool)[start:start + n]) + start
+        start += n
+        if len(keep) == 0:
+            continue
+        u = v_hor[keep] @ C                                   # predicted directions, deck axes
+        e = u - w_deck[keep]
+        W = W_all[keep]
+        A = _skew(u)
+        F_s = (np.swapaxes(A, 1, 2) @ W @ A).sum(axis=0)
+        h_s = np.cross(u, np.einsum("nij,nj->ni", W, e)).sum(axis=0)
+        F_tot += F_s
+        M = s.mount_covariance_rad2
+        if M is None:
+            F_new += F_s
+            h_new += h_s
+            continue
+        M = np.asarray(M, float)
+        F_new += F_s @ np.linalg.inv(np.eye(3) + M @ F_s)
+        h_new += np.linalg.solve(np.eye(3) + F_s @ M, h_s)
+    try:
+        P_info = np.linalg.inv(F_new)
+    except np.linalg.LinAlgError:
+        return None, None
+    k = float(np.trace(np.asarray(sol.covariance_rad2, float) @ F_tot)) / 3.0   # the solver's scaling
+    if not (math.isfinite(k) and k > 0):
+        return None, None
+    P = 0.5 * (P_info + P_info.T) * k
+    return C @ _rotation_from_vector(P_info @ h_new), P
+
+
+def _common_mode_covariance(sensors, sol, info, sigma, w_deck) -> np.ndarray:
+    """``sum_s P F_s M_s F_s P`` (3, 3, deck axes): each sensor's common-mode error ``M_s``
+    (``SensorStars.model_covariance_rad2`` in deck axes) through the joint solution, whose
+    attitude moves by ``P F_s d`` when that sensor's stars all turn by ``d`` (``P`` the
+    joint covariance, ``F_s`` the information of the sensor's inlier stars)."""
+    from shipstar.attitude._solve import _fisher_body
+
+    out = np.zeros((3, 3))
+    start = 0
+    W = info if sol.info_per_rad2 is None else sol.info_per_rad2
+    for s in sensors:
+        n = np.atleast_2d(np.asarray(s.w_sensor, float)).shape[0]
+        rows = slice(start, start + n)
+        start += n
+        if s.model_covariance_rad2 is None:
+            continue
+        keep = np.flatnonzero(sol.inliers[rows]) + rows.start
+        if sol.info_per_rad2 is None:                         # scalar weights sigma^-2
+            wd = w_deck[keep] / np.linalg.norm(w_deck[keep], axis=1, keepdims=True)
+            F_s = np.einsum("n,nij->ij", sigma[keep] ** -2.0, np.eye(3) - wd[:, :, None] * wd[:, None, :])
+        else:
+            F_s = _fisher_body(w_deck[keep] / np.linalg.norm(w_deck[keep], axis=1, keepdims=True), W[keep])
+        R = np.asarray(s.C_deck_from_sensor, float)
+        if s.mount_covariance_rad2 is not None:     # the sensor's weight with its mount eliminated
+            F_s = F_s @ np.linalg.inv(np.eye(3) + np.asarray(s.mount_covariance_rad2, float) @ F_s)
+        G = sol.covariance_rad2 @ F_s
+        out += G @ (R @ np.asarray(s.model_covariance_rad2, float) @ R.T) @ G.T
+    return 0.5 * (out + out.T)

@@ -244,10 +244,10 @@ class SessionEngine:
         if self.options.compensate_motion and any(abs(o) > 1e-6 for o in offsets if math.isfinite(o)):
             motion = self._motion.fit(limits)
         configs = self._mounts.configs_for(fr_ref) if self._mounts is not None else self.configs
+        vf = self._mounts.variance_factor() if self._mounts is not None else 1.0
         epoch = fuse_epoch(self.n_epochs, t_k, self.start_utc_jd, configs, paired, offsets, motion,
-                           self.options, self.roles, reference=self.reference)
+                           self.options, self.roles, reference=self.reference, variance_factor=vf)
         if self._mounts is not None:                    # clock offsets and flexure (pipeline._mounts)
-            epoch = self._mounts.with_flexure_uncertainty(epoch, fr_ref)
             shifts = [0.0 if p is None else t_k + o - self.t_s(p) for p, o in zip(paired, offsets)]
             fit = motion if motion is not None else self._motion.fit(limits)
             epoch = replace(epoch, mounts=self._mounts.update(t_k, epoch, paired, shifts, configs, fit))

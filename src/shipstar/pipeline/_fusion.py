@@ -15,7 +15,7 @@ which) and carried to the epoch time with the deck's motion fitted to the frames
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -90,8 +90,9 @@ def _sensor_correction(C_ds: np.ndarray, delta_deck: np.ndarray) -> np.ndarray:
     return C_ds.T @ delta_deck.T @ C_ds
 
 
-def _carried_single(fr, config, delta_deck):
-    """The frame's single-sensor ship attitude carried by the deck rotation ``delta_deck``."""
+def _carried_single(fr, config, delta_deck, variance_factor: float = 1.0):
+    """The frame's single-sensor ship attitude carried by the deck rotation ``delta_deck``,
+    its stars' covariance times ``variance_factor``."""
     from shipstar.ship import ShipAttitude, ship_attitude_from_sensor
 
     if not fr.ship.solved:
@@ -100,10 +101,14 @@ def _carried_single(fr, config, delta_deck):
         return ShipAttitude.failed("no installation", "single")
     C_ds = config.installation.C_deck_from_sensor
     C_hs = fr.horizontal.C_hor_from_sensor @ _sensor_correction(C_ds, delta_deck).T
-    return ship_attitude_from_sensor(C_hs, C_ds, fr.horizontal.covariance_rad2, n_stars=fr.horizontal.n_used)
+    cov = np.asarray(fr.horizontal.covariance_rad2, float) * variance_factor
+    M = getattr(config.installation, "mount_covariance_rad2", None)
+    if M is not None:               # a flexed mount's uncertainty (deck axes) in the sensor's axes
+        cov = np.asarray(cov, float) + C_ds.T @ M @ C_ds
+    return ship_attitude_from_sensor(C_hs, C_ds, cov, n_stars=fr.horizontal.n_used)
 
 
-def _fuse(paired, configs, roles, deltas, singles, carry_why: str = ""):
+def _fuse(paired, configs, roles, deltas, singles, carry_why: str = "", variance_factor: float = 1.0):
     """(seed_rule, joint) from the paired FrameResults (None: no frame) and their carried
     single-sensor attitudes; ``carry_why``: why the frames cannot be carried ('' if they can)."""
     from shipstar.ship import ShipAttitude, fuse_joint, fuse_seed_rule
@@ -122,6 +127,14 @@ def _fuse(paired, configs, roles, deltas, singles, carry_why: str = ""):
     stars = [fr.sensor_stars(c.installation.C_deck_from_sensor,
                              _sensor_correction(c.installation.C_deck_from_sensor, d))
              for fr, c, d in zip(paired, configs, deltas)]
+    if variance_factor != 1.0:
+        stars = [replace(s, sigma_rad=np.asarray(s.sigma_rad, float) * math.sqrt(variance_factor),
+                         info_per_rad2=None if s.info_per_rad2 is None else s.info_per_rad2 / variance_factor)
+                 for s in stars]
+    # flexed mounts (pipeline._mounts): the estimate's uncertainty weights the sensor
+    stars = [s if getattr(c.installation, "mount_covariance_rad2", None) is None else
+             replace(s, mount_covariance_rad2=c.installation.mount_covariance_rad2)
+             for s, c in zip(stars, configs)]
     return seed, fuse_joint(stars)
 
 
@@ -142,7 +155,7 @@ def _deltas(offsets_s, t_s: float, motion, options):
 
 
 def fuse_epoch(index: int, t_s: float, start_jd, configs, paired, offsets_s, motion, options, roles=None, *,
-               reference: int = 0) -> Epoch:
+               reference: int = 0, variance_factor: float = 1.0) -> Epoch:
     """Carry and fuse one epoch.
 
     Parameters
@@ -164,6 +177,9 @@ def fuse_epoch(index: int, t_s: float, start_jd, configs, paired, offsets_s, mot
         :func:`sensor_roles` of ``configs``.
     reference : int
         Index of the reference sensor (its frame gives the epoch's label).
+    variance_factor : float
+        Multiplies the stars' covariances (the sensors' a posteriori variance factor from
+        their disagreement, :meth:`shipstar.pipeline._mounts.MountEstimator.variance_factor`).
 
     Returns
     -------
@@ -181,8 +197,8 @@ def fuse_epoch(index: int, t_s: float, start_jd, configs, paired, offsets_s, mot
         elif why and abs(dt) > MIN_CARRY_S:
             singles.append(ShipAttitude.failed(why, "single"))
         else:
-            singles.append(_carried_single(fr, c, d))
-    seed, joint = _fuse(paired, configs, roles, deltas, singles, why)
+            singles.append(_carried_single(fr, c, d, variance_factor))
+    seed, joint = _fuse(paired, configs, roles, deltas, singles, why, variance_factor)
     integrity = epoch_integrity(configs, paired, singles)
     singles = tuple(singles)
     frame_index = tuple(fr.index if fr is not None else -1 for fr in paired)

@@ -44,7 +44,25 @@ What is applied (the rules):
   from 0 beyond the chi-square quantile at 1e-6 (stay: 1e-2), ``B``'s installation in the
   epoch's fusion (seed rule, joint solution, integrity) is ``Exp([phi_k] x) C_deck_from_sensor``
   with ``phi_k = s + G a_k`` from the epochs before (a_k: this epoch's reference roll and
-  pitch).  The joint attitude then refers to the reference sensor's mount.
+  pitch).  The joint attitude then refers to the reference sensor's mount.  The estimate's
+  uncertainty ``Phi = X cov X^T`` goes with it (``mount_covariance_rad2`` of the flexed
+  installation): ``B``'s single attitude in the fusion has ``S_B + Phi``, and the joint
+  solution eliminates ``B``'s mount error as a nuisance rotation
+  (:func:`shipstar.ship._with_mount_errors`), so a poorly known mount weighs little.
+
+How far the stated sigmas are to be trusted, from the same disagreements:
+
+- the fit's covariance is scaled by its residuals' chi2 per degree of freedom (when above 1)
+  and by ``(1 + rho) / (1 - rho)``, ``rho`` the lag-1 correlation of successive epochs'
+  whitened innovations (seeing with a correlation time, a slowly changing star field: errors
+  that do not average down as white noise would, :meth:`_Track.correlation_factor`);
+- the **variance factor** (:meth:`MountEstimator.variance_factor`): the mean chi2 of the
+  innovations per degree of freedom over the last :data:`VARIANCE_MEMORY_S` seconds.  When
+  it exceeds 1 beyond chance the sensors disagree by more than their stars' sigmas say (a
+  sparse, moonlit, clouded sky whose star errors the residuals do not show), and the engine
+  multiplies both sensors' star covariances by it in the next epoch's fusion.  Two sensors
+  cannot say which of them is optimistic, nor about an axis that only one of them measures
+  well; the factor is never below 1.
 
 Without a clock offset or flexure nothing is applied (the rows are those of a rigid deck).
 """
@@ -79,6 +97,16 @@ MAX_APPLY_SIGMA_S = 5e-4
 ENTER_P, STAY_P = 1e-6, 1e-2
 #: An epoch whose disagreement's chi2 (3 dof) against the prediction exceeds this is not used.
 GATE_CHI2 = 30.0
+#: Epochs further apart than this (s) are not consecutive for the innovations' correlation.
+MAX_LAG_S = 0.25
+#: The largest lag-1 correlation of the innovations taken (a factor of 9 on the variance).
+MAX_RHO = 0.8
+#: Memory (s, forgetting time constant) of the a posteriori variance factor: the sky changes
+#: (cloud, the Moon) within a minute, and 10 s hold ~300 degrees of freedom at 10 epochs/s.
+VARIANCE_MEMORY_S = 10.0
+#: The factor is applied when above ``1 + VARIANCE_SIGMAS sqrt(2 / dof)``: chance (3 sigma of
+#: chi2's spread) does not inflate honest sigmas, so a clean night keeps its rows.
+VARIANCE_SIGMAS = 3.0
 
 MONITOR_COLUMNS = ("time_utc", "sensor", "rot_bow_arcsec", "rot_up_arcsec", "rot_starboard_arcsec",
                    "sigma_bow_arcsec", "sigma_up_arcsec", "sigma_starboard_arcsec")
@@ -92,12 +120,14 @@ def _num(x):
 
 
 class _FlexedInstallation:
-    """An installation with its mount turned: ``C_deck_from_sensor = Exp([phi] x) C``;
-    every other attribute is the original's."""
+    """An installation with its mount turned: ``C_deck_from_sensor = Exp([phi] x) C``, and
+    the uncertainty of ``phi``; every other attribute is the original's."""
 
-    def __init__(self, installation, C_deck_from_sensor):
+    def __init__(self, installation, C_deck_from_sensor, mount_covariance_rad2):
         self._inst = installation
         self.C_deck_from_sensor = C_deck_from_sensor
+        #: (3, 3) deck axes, rad^2: the uncertainty of the flexure estimate applied
+        self.mount_covariance_rad2 = mount_covariance_rad2
 
     def __getattr__(self, name):
         return getattr(self._inst, name)
@@ -150,6 +180,11 @@ class _Track:
         self.cov = np.full((_NP, _NP), math.nan)
         self.clock_applied = False
         self.flex_applied = False
+        self.u_prev, self.t_prev = None, None   # the last whitened innovation and its time
+        self.uu_lag = np.zeros(2)               # forgetting sums of u_k . u_k-1 and |u_k|^2
+        self.vf_chi2 = 0.0                # forgetting sums of the innovations' chi2 and epochs
+        self.vf_n = 0.0
+        self.vf_t = None
 
     def active(self) -> np.ndarray:
         """The parameters estimated: the wave gains of an angle only while it spreads by more
@@ -181,6 +216,7 @@ class _Track:
         chi2 = max(0.0, self.yy - 2.0 * theta_k @ b + theta_k @ N @ theta_k)
         dof = 3.0 * self.n_eff - len(b)
         scale = max(1.0, chi2 / dof) if dof > 0 else 1.0
+        scale *= self.correlation_factor()
         theta, cov = np.zeros(_NP), np.zeros((_NP, _NP))
         theta[keep] = theta_k
         cov[np.ix_(keep, keep)] = cov_k * scale
@@ -200,7 +236,10 @@ class _Track:
         if self.n >= MIN_MONITOR_EPOCHS and np.all(np.isfinite(self.theta)):
             v = y_asec - X @ self.theta
             S = np.linalg.inv(info) + X @ self.cov @ X.T
-            if float(v @ np.linalg.solve(S, v)) > GATE_CHI2:
+            chi2 = float(v @ np.linalg.solve(S, v))
+            self._add_variance(t_s, min(chi2, GATE_CHI2))
+            self._add_correlation(t_s, v, S, chi2)
+            if chi2 > GATE_CHI2:
                 self.n_gated += 1
                 return
         self.N += X.T @ info @ X
@@ -212,6 +251,49 @@ class _Track:
         self.aa_sum += np.outer(a_deg, a_deg)
         self.solve()
         self._rules()
+
+    def _add_correlation(self, t_s, v, S, chi2) -> None:
+        """Lag-1 products of the whitened innovations of consecutive epochs."""
+        try:
+            u = np.linalg.solve(np.linalg.cholesky(S), v)
+        except np.linalg.LinAlgError:
+            return
+        if chi2 > GATE_CHI2:
+            u = u * math.sqrt(GATE_CHI2 / chi2)
+        prev, t_prev = self.u_prev, self.t_prev
+        self.u_prev, self.t_prev = u, t_s
+        if prev is None or not 0.0 < t_s - t_prev <= MAX_LAG_S:
+            return
+        self.uu_lag *= math.exp(-(t_s - t_prev) / MEMORY_S)
+        self.uu_lag += (float(u @ prev), 0.5 * float(u @ u + prev @ prev))
+
+    def correlation_factor(self) -> float:
+        """``(1 + rho) / (1 - rho)``: how much more a slowly varying parameter's variance is
+        than the white-noise fit states when successive epochs' errors correlate with lag-1
+        coefficient ``rho`` (seeing with its correlation time, a star field that changes
+        slowly); ``rho`` from the whitened innovations, clipped to [0, :data:`MAX_RHO`]."""
+        if self.uu_lag[1] <= 0.0 or self.n < MIN_EPOCHS:
+            return 1.0
+        rho = min(MAX_RHO, max(0.0, self.uu_lag[0] / self.uu_lag[1]))
+        return (1.0 + rho) / (1.0 - rho)
+
+    def _add_variance(self, t_s, chi2) -> None:
+        if self.vf_t is not None:
+            lam = math.exp(-max(0.0, t_s - self.vf_t) / VARIANCE_MEMORY_S)
+            self.vf_chi2 *= lam
+            self.vf_n *= lam
+        self.vf_t = t_s
+        self.vf_chi2 += chi2
+        self.vf_n += 1.0
+
+    def variance_factor(self) -> float:
+        """The disagreement's a posteriori variance factor (mean innovation chi2 / 3), 1.0
+        unless it exceeds 1 beyond chance (:data:`VARIANCE_SIGMAS`)."""
+        dof = 3.0 * self.vf_n
+        if dof < 3.0 * MIN_EPOCHS:
+            return 1.0
+        f = self.vf_chi2 / dof
+        return f if f > 1.0 + VARIANCE_SIGMAS * math.sqrt(2.0 / dof) else 1.0
 
     # -- what is applied ----------------------------------------------------------------
     def clock(self):
@@ -246,13 +328,20 @@ class _Track:
         sig = np.sqrt(np.maximum(0.0, np.einsum("ij,jk,ik->i", X, self.cov[:9, :9], X)))
         return rot, sig
 
+    def phi_cov(self, a_deg) -> np.ndarray:
+        """(3, 3) covariance (arcsec^2, deck axes) of the flexure model at roll/pitch ``a_deg``."""
+        X = _design(a_deg, np.zeros(3))[:, :9]
+        return X @ self.cov[:9, :9] @ X.T
+
     def a_mean(self):
         return self.a_sum / self.n_eff if self.n_eff > 0 else np.zeros(2)
 
     def flexure_block(self, sem_arcsec) -> dict:
         """The summary's flexure entry of this sensor."""
         rot, sig = self.phi(self.a_mean())
-        out = {"n_epochs": self.n, "n_gated": self.n_gated, "applied": self.flex_applied}
+        out = {"n_epochs": self.n, "n_gated": self.n_gated, "applied": self.flex_applied,
+               "variance_factor": _num(self.variance_factor()),
+               "correlation_factor": _num(self.correlation_factor())}
         out["static_arcsec"] = {ax: _num(r) for ax, r in zip(_AXES, rot)}
         out["static_sigma_arcsec"] = {ax: _num(s) for ax, s in zip(_AXES, sig)}
         amp, amp_sig = np.full(3, math.nan), np.full(3, math.nan)
@@ -297,6 +386,15 @@ class MountEstimator:
         self.others = [k for k in range(len(self.configs)) if k != self.reference]
         self._tracks = {k: _Track() for k in self.others}
 
+    def variance_factor(self) -> float:
+        """The factor by which the sensors' star covariances fall short of their observed
+        disagreement (the largest over the non-reference sensors; 1.0 when they agree as
+        stated).  Two sensors that disagree by more than their sigmas say the sigmas are too
+        small but not whose, so the engine multiplies both sensors' star covariances by it
+        in the next epoch's fusion (the a posteriori variance factor of geodesy's
+        adjustments).  It is never below 1: sigmas that are too large stay as stated."""
+        return max([tr.variance_factor() for tr in self._tracks.values()], default=1.0)
+
     def shift_s(self, sensor: int) -> float:
         """The shift applied to this sensor's frame times now (s)."""
         tr = self._tracks.get(sensor)
@@ -317,44 +415,9 @@ class MountEstimator:
             if tr.flex_applied and c.installation is not None:
                 rot, _ = tr.phi(a)
                 C = expm_rotvec(rot * ASEC2RAD) @ c.installation.C_deck_from_sensor
-                out[k] = replace(c, installation=_FlexedInstallation(c.installation, C))
+                Phi = tr.phi_cov(a) * ASEC2RAD ** 2
+                out[k] = replace(c, installation=_FlexedInstallation(c.installation, C, Phi))
         return tuple(out)
-
-    def with_flexure_uncertainty(self, epoch, fr_ref):
-        """``epoch`` with its joint attitude's covariance grown by the uncertainty of the
-        flexure applied to its fusion (``phi``'s sigma per deck axis): a mount error
-        ``dphi`` of sensor ``B`` moves the joint attitude by ``P S_B^-1 dphi`` (``P`` the
-        joint covariance, ``S_B`` sensor B's alone, both about the deck axes), which the
-        stars' covariance does not contain.  Unchanged where no flexure is applied."""
-        from dataclasses import replace
-
-        from shipstar.ship import ship_angles_jacobian
-
-        joint = epoch.joint
-        applied = [k for k, tr in self._tracks.items() if tr.flex_applied]
-        if not applied or not joint.solved or fr_ref is None or not fr_ref.ship.solved \
-                or not np.all(np.isfinite(joint.covariance_rad2)):
-            return epoch
-        a = self._angles(fr_ref)
-        try:
-            J = ship_angles_jacobian(joint.C_hor_from_deck)
-            J_inv = np.linalg.inv(J)
-            P_deck = J_inv @ joint.covariance_rad2 @ J_inv.T
-            extra = np.zeros((3, 3))
-            for k in applied:
-                single = epoch.single[k]
-                if not single.solved or not np.all(np.isfinite(single.covariance_rad2)):
-                    continue
-                S_deck = J_inv @ single.covariance_rad2 @ J_inv.T
-                W = P_deck @ np.linalg.inv(S_deck)
-                _, sigma_arcsec = self._tracks[k].phi(a)
-                if np.all(np.isfinite(sigma_arcsec)):
-                    extra += W @ np.diag((sigma_arcsec * ASEC2RAD) ** 2) @ W.T
-        except np.linalg.LinAlgError:
-            return epoch
-        if not extra.any():
-            return epoch
-        return replace(epoch, joint=replace(joint, covariance_rad2=joint.covariance_rad2 + J @ extra @ J.T))
 
     @staticmethod
     def _angles(fr_ref) -> np.ndarray:
