@@ -47,6 +47,10 @@ def _warm_up(config, options, database, lookup) -> None:
         for k in range(2):                                  # lost in space, then tracking
             proc.process(replace(frame, utc_jd2=frame.utc_jd2 + k * 0.1 / 86400.0), k, 0.1 * k, site=site,
                          weather=weather)
+    # a still frame does not reach the smeared-frame extraction, which `extract` loads on the
+    # first smeared frame (deferred for `shipstar solve`): load it here, not on the first
+    # frame at sea (that frame fell behind and was skipped when it did)
+    import shipstar.extract._smeared  # noqa: F401
 
 
 def _worker_main(config, options, jobs, results) -> None:
