@@ -281,6 +281,17 @@ def fuse_joint(sensors: Sequence[SensorStars], *, reject_outliers: bool = True) 
     return _from_C(sol.C_ref_from_body, cov, "joint", int(sol.n_used))
 
 
+def _inlier_rows(sensors, inliers):
+    """``(sensor, rows)`` for each sensor: the indices of its inlier stars among all the
+    sensors' stars stacked in order (``inliers`` (N,) bool, the joint solution's)."""
+    start = 0
+    inliers = np.asarray(inliers, bool)
+    for s in sensors:
+        n = np.atleast_2d(np.asarray(s.w_sensor, float)).shape[0]
+        yield s, np.flatnonzero(inliers[start:start + n]) + start
+        start += n
+
+
 def _with_mount_errors(sensors, sol, w_deck, v_hor, info):
     """The joint solution with the sensors' mount uncertainties eliminated, or (None, None).
 
@@ -301,11 +312,7 @@ def _with_mount_errors(sensors, sol, w_deck, v_hor, info):
     C = np.asarray(sol.C_ref_from_body, float)
     W_all = info if sol.info_per_rad2 is None else np.asarray(sol.info_per_rad2, float)
     F_tot, F_new, h_new = np.zeros((3, 3)), np.zeros((3, 3)), np.zeros(3)
-    start = 0
-    for s in sensors:
-        n = np.atleast_2d(np.asarray(s.w_sensor, float)).shape[0]
-        keep = np.flatnonzero(np.asarray(sol.inliers, bool)[start:start + n]) + start
-        start += n
+    for s, keep in _inlier_rows(sensors, sol.inliers):
         if len(keep) == 0:
             continue
         u = v_hor[keep] @ C                                   # predicted directions, deck axes
@@ -342,15 +349,10 @@ def _common_mode_covariance(sensors, sol, info, sigma, w_deck) -> np.ndarray:
     from shipstar.attitude._solve import _fisher_body
 
     out = np.zeros((3, 3))
-    start = 0
     W = info if sol.info_per_rad2 is None else sol.info_per_rad2
-    for s in sensors:
-        n = np.atleast_2d(np.asarray(s.w_sensor, float)).shape[0]
-        rows = slice(start, start + n)
-        start += n
+    for s, keep in _inlier_rows(sensors, sol.inliers):
         if s.model_covariance_rad2 is None:
             continue
-        keep = np.flatnonzero(sol.inliers[rows]) + rows.start
         if sol.info_per_rad2 is None:                         # scalar weights sigma^-2
             wd = w_deck[keep] / np.linalg.norm(w_deck[keep], axis=1, keepdims=True)
             F_s = np.einsum("n,nij->ij", sigma[keep] ** -2.0, np.eye(3) - wd[:, :, None] * wd[:, None, :])

@@ -191,6 +191,14 @@ def _track_params(b: "_DbBuffers", m: int, params):
             _pack_d9(cy, cz, hy, hz, gate, gate_prior, gate_shift, area, limit))
 
 
+def _rotation_arg(C_prior) -> np.ndarray:
+    """``C_prior`` (3, 3) as the C kernels read it (float64, C order)."""
+    C = np.ascontiguousarray(C_prior, dtype=np.float64)
+    if C.shape != (3, 3):
+        raise ValueError("C_prior must be (3, 3)")
+    return C
+
+
 def track_solve(t, w, C_prior, db, params, *, n_field: int, usable):
     """Tracking of the stars ``t (n, 2)`` (tangent plane at the focal scale), ``w (n, 3)``
     (their unit vectors; input rows ``usable``, None: ``0 .. n - 1``, of ``n_field``)
@@ -203,9 +211,7 @@ def track_solve(t, w, C_prior, db, params, *, n_field: int, usable):
     n = t.shape[0]
     if w.shape[0] != n or n > 64 or n > n_field:
         raise ValueError("bad tracking input sizes")
-    C_prior = np.ascontiguousarray(C_prior, dtype=np.float64)
-    if C_prior.shape != (3, 3):
-        raise ValueError("C_prior must be (3, 3)")
+    C_prior = _rotation_arg(C_prior)
     b = db_buffers(db)
     ip, dp = _track_params(b, n, params)
     C = np.empty((3, 3))
@@ -226,9 +232,7 @@ def track_pinhole(xy, cam, m: int, C_prior, db, params):
     n = xy.shape[0]
     if xy.dtype is not _F64 or xy.shape != (n, 2) or m > min(n, 64):   # C order: the buffer's
         raise ValueError("bad tracking input sizes")
-    C_prior = np.ascontiguousarray(C_prior, dtype=np.float64)
-    if C_prior.shape != (3, 3):
-        raise ValueError("C_prior must be (3, 3)")
+    C_prior = _rotation_arg(C_prior)
     b = db_buffers(db)
     ip, dp = _track_params(b, m, params)
     C = np.empty((3, 3))
