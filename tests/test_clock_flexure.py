@@ -136,3 +136,76 @@ def test_monitor_csv_columns_and_rows(flexure, tmp_path):
     w = MonitorCsvWriter(path, keep_before_s=res.epochs[10].t_s, start_utc_jd=res.start_utc_jd)
     w.close()
     assert len(path.read_text().splitlines()) == 1 + 10
+
+
+# -- the fixed-lag smoother (measure --smooth-lag-s) ------------------------------------------
+
+def _smoothed(conditions, lag_s=60.0):
+    spec = sea_session(duration_s=DURATION_S)
+    if conditions is not None:
+        spec = apply_conditions(spec, load_conditions(conditions))
+    cf = simulate_centroids(spec)
+    track, weather, truth = tables(spec)
+    configs = [SensorConfig(s.name, s.camera, Installation.from_matrix(s.name, s.camera.name, s.C_deck_from_sensor))
+               for s in spec.sensors]
+    res = process_session(configs, [frames_of(cf, s.name) for s in spec.sensors], track, weather,
+                          PipelineOptions(), smooth_lag_s=lag_s)
+    return spec, res, truth
+
+
+def test_smoother_leaves_a_rigid_deck_alone(clean):
+    _, causal, _ = clean
+    _, smooth, _ = _smoothed(None)
+    a = np.array([[e.joint.heading_rad, e.joint.pitch_rad, e.joint.roll_rad] for e in causal.epochs])
+    b = np.array([[e.joint.heading_rad, e.joint.pitch_rad, e.joint.roll_rad] for e in smooth.epochs])
+    np.testing.assert_array_equal(a, b)                       # the same rows, bit for bit
+    assert [len(e.frames) for e in causal.emissions] == [len(e.frames) for e in smooth.emissions]
+
+
+def test_smoother_applies_the_clock_offset_to_the_first_epochs(clock):
+    """Causally the 3 ms offset is applied after ~30 epochs and the joint solution is off by
+    tens of arcsec before; smoothed, every epoch is carried from the true exposure time."""
+    _, causal, truth = clock
+    _, smooth, _ = _smoothed("clock")
+    err_c = attitude_errors_arcsec(method_series(causal, "joint"), truth)
+    err_s = attitude_errors_arcsec(method_series(smooth, "joint"), truth)
+    assert np.nanmax(np.abs(err_c[:MIN_EPOCHS])) > 10.0
+    assert np.all(np.sqrt(np.nanmean(err_s[:MIN_EPOCHS] ** 2, axis=0)) < 1.0)
+    assert np.all(np.sqrt(np.nanmean(err_s ** 2, axis=0)) < 1.0)
+    # the summary's estimate is the estimator's own, as without smoothing
+    assert session_summary(smooth, truth)["time_offsets_s"] == session_summary(causal, truth)["time_offsets_s"]
+
+
+def test_smoother_monitor_and_joint_from_the_first_epoch(flexure):
+    spec, causal, truth = flexure
+    _, smooth, _ = _smoothed("flexure")
+    t = np.array([e.t_s for e in smooth.epochs])
+    phi = np.array([flexure_rotvec_rad(spec, "A2", x) for x in t]) * RAD2ASEC
+    est = np.array([e.mounts.monitor[0][1] for e in smooth.epochs])
+    sig = np.array([e.mounts.monitor[0][2] for e in smooth.epochs])
+    # every epoch of an 8 s session gets the whole session's estimate: no NaN rows, and the
+    # estimate is within its stated sigma of the truth
+    assert np.all(np.isfinite(est))
+    z = (est - phi) / sig
+    assert np.all(np.sqrt(np.mean(z ** 2, axis=0)) < 2.0)
+    err_c = attitude_errors_arcsec(method_series(causal, "joint"), truth)
+    err_s = attitude_errors_arcsec(method_series(smooth, "joint"), truth)
+    rms_c = np.sqrt(np.nanmean(err_c[:60] ** 2, axis=0))
+    rms_s = np.sqrt(np.nanmean(err_s[:60] ** 2, axis=0))
+    assert np.all(rms_s < 1.5) and rms_s.max() < 0.5 * rms_c.max()
+
+
+def test_engine_flush_gives_out_held_epochs(flexure):
+    from shipstar.pipeline._engine import SessionEngine
+
+    spec, res, _ = flexure
+    configs = [SensorConfig(s.name, s.camera, Installation.from_matrix(s.name, s.camera.name, s.C_deck_from_sensor))
+               for s in spec.sensors]
+    eng = SessionEngine(configs, res.options, start_utc_jd=res.start_utc_jd, smooth_lag_s=1e6)
+    out = []
+    for fr in sorted((fr for rs in res.frames for fr in rs), key=lambda f: (eng.t_s(f), f.sensor)):
+        out += eng.add(fr)
+    assert out == [] and eng.next_epoch_t_s() == pytest.approx(0.0, abs=1e-6)
+    held = eng.flush()
+    assert [e.epoch.index for e in held if e.epoch is not None] == list(range(len(held)))
+    assert len(held) >= len(res.epochs) - 1 and eng.flush() == []

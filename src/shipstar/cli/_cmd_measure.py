@@ -112,6 +112,11 @@ WEATHER_HELPS = {
 }
 
 
+#: ``--smooth-lag-s`` default (s): a minute of the night holds ~600 epochs of the mounts'
+#: disagreement, and the engine holds ~12 MB of epochs for it.
+SMOOTH_LAG_S = 60.0
+
+
 def add_processing_arguments(p):
     """The ``processing`` group that ``measure`` and ``measure-archive`` share (refraction,
     frame times, pairing, motion compensation, streak correction); returns the group."""
@@ -127,6 +132,9 @@ def add_processing_arguments(p):
                    help="do not carry paired frames to the epoch time (for comparison)")
     o.add_argument("--no-streak-correction", action="store_true",
                    help="do not turn streak centroids (exposure averages) to mid-exposure directions (for comparison)")
+    o.add_argument("--smooth-lag-s", type=_non_negative, default=SMOOTH_LAG_S, metavar="S",
+                   help=f"fuse each epoch with the mounts' flexure estimate of the epochs up to S seconds later "
+                        f"(a fixed-lag smoother, default {SMOOTH_LAG_S:g}; 0: causal, as live; docs/pipeline.md)")
     return o
 
 
@@ -425,7 +433,8 @@ def _job(args, track, weather):
     firsts = [_first_frame_time(directory, args.date_obs_is) for _, directory in args.sensor]
     start = min(firsts, key=lambda jd: (jd[0] - firsts[0][0]) + jd[1])
     ref = names.index(args.reference) if args.reference else 0
-    return MeasureJob(tuple(configs), track, weather, options, (float(start[0]), float(start[1])), ref)
+    return MeasureJob(tuple(configs), track, weather, options, (float(start[0]), float(start[1])), ref,
+                      smooth_lag_s=float(args.smooth_lag_s))
 
 
 def _check_covered(sources, track, weather) -> None:

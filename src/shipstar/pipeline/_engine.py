@@ -30,6 +30,21 @@ rows go with it (the reference frame, the frames it paired that no earlier epoch
 and frames no epoch can pair any more), and the warnings that arose.  Batch processing
 (:func:`shipstar.pipeline.process_session`, ``shipstar measure``) and ``shipstar live``
 are two drivers of this engine.
+
+**Fixed-lag smoothing of the mounts** (``smooth_lag_s > 0``, ``shipstar measure``; live
+has 0): the flexure estimate an epoch is fused with is, causally, the one of the epochs
+before it (:mod:`shipstar.pipeline._mounts`), poor in the first seconds of a night and
+under a sparse sky.  With a lag ``L`` the engine holds each epoch until the reference
+sensor's epochs have reached ``t + L`` (or the session ends, or the caller flushes), and
+then fuses it again with the estimate of every epoch up to then: the estimate of a
+fixed-lag smoother (the estimator's own inputs, the sensors' disagreements, do not
+depend on the fusion, so holding changes nothing else).  The monitor rows of a held epoch
+are the smoothed estimate too.  An epoch fused with a rigid deck then and now is given
+out unchanged, so a session without flexure has the rows of the causal engine.  Held:
+the epochs of ``L`` seconds with their frames (about 0.2 MB a second for two sensors) and
+the deck attitudes of ``L`` seconds more for the motion.  A frame paired before its
+sensor's clock offset was applied is carried from its true time, with the deck's motion
+fitted on both sides of the epoch.
 """
 
 from __future__ import annotations
@@ -87,7 +102,7 @@ class SessionEngine:
     returns the :class:`Emission` s that became final.
     """
 
-    def __init__(self, configs, options=None, *, start_utc_jd, reference: int = 0):
+    def __init__(self, configs, options=None, *, start_utc_jd, reference: int = 0, smooth_lag_s: float = 0.0):
         from shipstar.pipeline._fusion import sensor_roles
         from shipstar.pipeline._motion import MotionWindow
         from shipstar.pipeline._options import PipelineOptions
@@ -120,6 +135,12 @@ class SessionEngine:
             chi2_limit(3 * (n - 1))
         self._warnings: list = []
         self.n_epochs = 0
+        lag = float(smooth_lag_s)
+        if not (math.isfinite(lag) and lag >= 0.0):
+            raise ShipstarError(f"smooth lag must be a number of seconds >= 0, got {smooth_lag_s!r}")
+        #: the fixed lag (s) of the mounts' smoothing (module docstring; 0: causal)
+        self.smooth_lag_s = lag if self._mounts is not None else 0.0
+        self._held = deque()     # (t_s, Emission, fusion inputs or None) not yet given out
 
     # -- input -----------------------------------------------------------------------------
     def t_s(self, fr) -> float:
@@ -142,7 +163,11 @@ class SessionEngine:
             from shipstar.ship import ShipAttitude
 
             bad = replace(fr, solved=False, reason=reason, ship=ShipAttitude.failed(reason, "single"))
-            return [Emission((bad,), None, (f"sensor {fr.sensor}: frame {fr.label}: {reason}",))]
+            refused = Emission((bad,), None, (f"sensor {fr.sensor}: frame {fr.label}: {reason}",))
+            if self._held:                               # after the held epochs: rows in time order
+                self._held.append((self._held[-1][0], refused, None))
+                return []
+            return [refused]
         self._check_time(s, fr, t)
         self._last_t[s] = t
         self._closed[s] = False
@@ -164,15 +189,23 @@ class SessionEngine:
             self._closed[k] = True
         return self._advance()
 
+    def flush(self) -> list:
+        """Give out the held epochs now, fused with the estimate as it stands (a run that
+        stops early; nothing else changes)."""
+        return self._release(math.inf)
+
     def next_epoch_t_s(self) -> float | None:
-        """Time of the next epoch not yet given out (its reference frame is held), or None."""
+        """Time of the next epoch not yet given out (held, or its reference frame held), or None."""
+        for t, e, _ in self._held:
+            if e.epoch is not None:
+                return t
         q = self._queue[self.reference]
         return q[0][0] if q else None
 
     @property
     def n_pending(self) -> int:
         """Frames held (not yet given out)."""
-        return sum(len(q) for q in self._queue)
+        return sum(len(q) for q in self._queue) + sum(len(e.frames) for _, e, _ in self._held)
 
     def _check_time(self, s: int, fr, t: float) -> None:
         name = self.names[s]
@@ -199,6 +232,7 @@ class SessionEngine:
                     rest = sorted(((t, s, fr) for s in others for t, fr in self._queue[s]), key=lambda x: x[:2])
                     for s in others:
                         self._queue[s].clear()
+                    out.extend(self._release(math.inf))
                     if rest or self._warnings:
                         out.append(Emission(tuple(fr for _, _, fr in rest), None, self._take_warnings()))
                 break
@@ -206,14 +240,52 @@ class SessionEngine:
             if not all(self._closed[s] or (self._queue[s] and self._queue[s][-1][0] >= t_k - _EPS_S)
                        for s in others):
                 break
-            out.append(self._epoch(R.popleft(), others))
+            out.extend(self._epoch(R.popleft(), others))
         return out
 
     def _take_warnings(self) -> tuple:
         w, self._warnings = tuple(self._warnings), []
         return w
 
-    def _epoch(self, ref_item, others) -> Emission:
+    def _release(self, t_now: float) -> list:
+        """The held emissions of epochs at or before ``t_now - smooth_lag_s``, re-fused."""
+        out = []
+        while self._held and self._held[0][0] <= t_now - self.smooth_lag_s + _EPS_S:
+            _, emission, inputs = self._held.popleft()
+            out.append(emission if inputs is None else self._smoothed(emission, inputs))
+        return out
+
+    def _smoothed(self, emission, inputs) -> Emission:
+        """A held epoch fused with the mounts' estimate of now (module docstring)."""
+        from shipstar.pipeline._fusion import fuse_epoch
+        from shipstar.pipeline._mounts import is_flexed
+
+        t_k, paired, offsets, motion, fit, shifts, configs_then, vf = inputs
+        epoch = emission.epoch
+        fr_ref = paired[self.reference]
+        configs = self._mounts.configs_for(fr_ref)
+        offsets = list(offsets)
+        changes = [0.0 if p is None or s == self.reference or not self.options.compensate_motion
+                   else self._mounts.shift_s(s) - shifts[s] for s, p in enumerate(paired)]
+        retimed = any(abs(c) > 1e-9 for c in changes)
+        if retimed:
+            # the clock offsets as estimated now: a frame paired before its sensor's offset
+            # was applied is carried from its true time (the pairing stays), with the deck's
+            # motion fitted to the attitudes on both sides of the epoch
+            fit = self._motion.fit(t_k + 0.5 * self._motion.window_s) or fit
+            retimed = fit is not None
+            if retimed:
+                offsets = [o + c for o, c in zip(offsets, changes)]
+        if retimed or any(is_flexed(c) for c in (*configs, *configs_then)):
+            epoch = fuse_epoch(epoch.index, t_k, self.start_utc_jd, configs, paired, offsets,
+                               fit if retimed else motion, self.options, self.roles, reference=self.reference,
+                               variance_factor=vf)
+        mounts = emission.epoch.mounts
+        if mounts is not None:
+            mounts = replace(mounts, monitor=self._mounts.monitor(fr_ref))
+        return replace(emission, epoch=replace(epoch, mounts=mounts))
+
+    def _epoch(self, ref_item, others) -> list:
         from shipstar.pipeline._fusion import fuse_epoch
 
         t_k, fr_ref = ref_item
@@ -247,11 +319,16 @@ class SessionEngine:
         vf = self._mounts.variance_factor() if self._mounts is not None else 1.0
         epoch = fuse_epoch(self.n_epochs, t_k, self.start_utc_jd, configs, paired, offsets, motion,
                            self.options, self.roles, reference=self.reference, variance_factor=vf)
+        shifts, fit = None, None
         if self._mounts is not None:                    # clock offsets and flexure (pipeline._mounts)
             shifts = [0.0 if p is None else t_k + o - self.t_s(p) for p, o in zip(paired, offsets)]
             fit = motion if motion is not None else self._motion.fit(limits)
             epoch = replace(epoch, mounts=self._mounts.update(t_k, epoch, paired, shifts, configs, fit))
         self.n_epochs += 1
-        self._motion.prune(t_k)
+        self._motion.prune(t_k - self.smooth_lag_s)     # the held epochs' deck motion stays
         rows.sort(key=lambda r: (r[0], r[1]))
-        return Emission(tuple(fr for _, _, fr in rows), epoch, self._take_warnings())
+        emission = Emission(tuple(fr for _, _, fr in rows), epoch, self._take_warnings())
+        if self.smooth_lag_s <= 0.0:
+            return [emission]
+        self._held.append((t_k, emission, (t_k, paired, offsets, motion, fit, shifts, configs, vf)))
+        return self._release(t_k)

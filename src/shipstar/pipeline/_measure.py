@@ -72,6 +72,9 @@ class MeasureJob:
         Session start: every ``t_s`` is counted from it.
     reference : int
         Index of the reference sensor.
+    smooth_lag_s : float
+        The engine's fixed lag for the mounts' flexure estimate (s, 0: causal;
+        :class:`~shipstar.pipeline._engine.SessionEngine`).
     """
 
     configs: tuple
@@ -80,6 +83,7 @@ class MeasureJob:
     options: object
     start_utc_jd: tuple
     reference: int = 0
+    smooth_lag_s: float = 0.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -247,6 +251,7 @@ def _fingerprint(job: MeasureJob, sources, chunk_s: float) -> dict:
     return {"sensors": [c.name for c in job.configs], "n_frames": [int(len(t[0])) for t in times],
             "first_last_utc_jd": [[float(t[0][0] + t[1][0]), float(t[0][-1] + t[1][-1])] for t in times],
             "start_utc_jd": list(job.start_utc_jd), "reference": job.reference, "chunk_s": chunk_s,
+            "smooth_lag_s": job.smooth_lag_s,
             "options": repr(job.options),
             "installations": [repr(c.installation) for c in job.configs],
             "cameras": [repr(c.camera) for c in job.configs]}
@@ -446,19 +451,22 @@ def run_measure(job: MeasureJob, sources, out, *, truth=None, comments=(), worke
     plan = _plan(times_s, chunk_s)
     fingerprint = _fingerprint(job, sources, chunk_s)
     checkpoint = resume_path(out)
-    engine = SessionEngine(job.configs, job.options, start_utc_jd=job.start_utc_jd, reference=job.reference)
+    engine = SessionEngine(job.configs, job.options, start_utc_jd=job.start_utc_jd, reference=job.reference,
+                           smooth_lag_s=job.smooth_lag_s)
     seen_warnings: list = []
     if resume:
         state = _read_checkpoint(checkpoint, fingerprint, out.with_name(out.name + ".partial"))
         writer = AttitudeCsvWriter(out, names, job.start_utc_jd, append_at=state["bytes"])
         stats = SessionStats(names, truth, state["stats"])
         first_chunk, resume_t = state["next_chunk"], state["resume_t_s"]
+        written_before_t = resume_t
         seen_warnings = list(state["warnings"])
         n_written = state["n_epochs_written"]
     else:
         writer = AttitudeCsvWriter(out, names, job.start_utc_jd, comments)
         stats = SessionStats(names, truth)
         first_chunk, resume_t, n_written = 0, None, 0
+        written_before_t = None           # a resumed run: epochs before this were written before
     total = sum(len(t) for t in times_s)
     done = sum(c.first for c in plan[first_chunk]) if resume else 0
     if tasks is not None:
@@ -496,7 +504,7 @@ def run_measure(job: MeasureJob, sources, out, *, truth=None, comments=(), worke
                     if fr is None:
                         merge.orphans = ()
                         continue
-                    n_written += _write(engine.add(fr), writer, stats, resume_t, seen_warnings)
+                    n_written += _write(engine.add(fr), writer, stats, written_before_t, seen_warnings)
                     if stop is not None and stop.is_set():
                         break
                 if stop is not None and stop.is_set():
@@ -509,20 +517,30 @@ def run_measure(job: MeasureJob, sources, out, *, truth=None, comments=(), worke
             if progress is not None:
                 progress(done, total)
             if row[0].index == len(plan) - 1:
-                n_written += _write(engine.finish(), writer, stats, None, seen_warnings)
+                n_written += _write(engine.finish(), writer, stats, written_before_t, seen_warnings)
                 break
             writer.sync()                     # the checkpoint never points past what is on disk
             nxt = engine.next_epoch_t_s()
+            next_chunk = row[0].index + 1
+            if nxt is not None and nxt < next_chunk * chunk_s - _EPS_S:
+                # epochs held for the smoothing (engine.smooth_lag_s): a resume replays their chunk
+                next_chunk = max(0, min(next_chunk, int(math.floor(nxt / chunk_s + _EPS_S))))
             _write_checkpoint(checkpoint, {
-                "version": RESUME_VERSION, "fingerprint": fingerprint, "next_chunk": row[0].index + 1,
-                "bytes": writer.tell(), "resume_t_s": (row[0].index + 1) * chunk_s if nxt is None else nxt,
+                "version": RESUME_VERSION, "fingerprint": fingerprint, "next_chunk": next_chunk,
+                "bytes": writer.tell(), "resume_t_s": next_chunk * chunk_s if nxt is None else nxt,
                 "stats": stats.state(), "warnings": seen_warnings, "n_epochs_written": n_written})
     except BaseException:
         runner.close(abort=True)
+        try:                                  # the epochs held for the smoothing are finished
+            _write(engine.flush(), writer, stats, written_before_t, seen_warnings)
+        except Exception:                     # noqa: BLE001 - the first error is the one to report
+            pass
         writer.close()
         raise
     runner.close(abort=bool(stopped))
     if stopped:
+        # the epochs held for the smoothing are finished: written with the estimate as it stands
+        n_written += _write(engine.flush(), writer, stats, written_before_t, seen_warnings)
         writer.close()
         return MeasureOutcome(stats, False, stopped, writer.partial, tuple(seen_warnings), n_written, resumed_at)
     unsolved = stats.unsolved_sensors()

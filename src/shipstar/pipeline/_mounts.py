@@ -76,7 +76,7 @@ import numpy as np
 
 from shipstar.units import ASEC2RAD, RAD2ASEC, RAD2DEG
 
-__all__ = ["MountEstimator", "MountsSnapshot", "MONITOR_COLUMNS", "MEMORY_S", "MIN_EPOCHS"]
+__all__ = ["MountEstimator", "MountsSnapshot", "MONITOR_COLUMNS", "MEMORY_S", "MIN_EPOCHS", "is_flexed"]
 
 #: Forgetting time constant of the running least squares (s): a thermal drift of 10'' a
 #: day moves by < 0.1'' within it; the clock offset's memory is 6000 epochs.
@@ -131,6 +131,11 @@ class _FlexedInstallation:
 
     def __getattr__(self, name):
         return getattr(self._inst, name)
+
+
+def is_flexed(config) -> bool:
+    """Whether a sensor config carries a flexed installation (:meth:`MountEstimator.configs_for`)."""
+    return isinstance(config.installation, _FlexedInstallation)
 
 
 @dataclass(frozen=True, eq=False)
@@ -432,7 +437,6 @@ class MountEstimator:
         ref = self.reference
         fr_ref, att_ref = paired[ref], epoch.single[ref]
         ok_ref = fr_ref is not None and att_ref.solved and fr_ref.horizontal is not None and motion is not None
-        monitor = []
         a = self._angles(fr_ref) if fr_ref is not None and fr_ref.ship.solved else None
         for k, tr in self._tracks.items():
             fr, att, c = paired[k], epoch.single[k], configs_used[k]
@@ -450,12 +454,21 @@ class MountEstimator:
                 y = d + applied_phi + omega * (shifts_s[k] * 1e3)
                 if np.all(np.isfinite(y)) and np.all(np.isfinite(P)):
                     tr.add(t_s, y, np.linalg.inv(P), a, omega)
-            if a is not None:
-                rot, sig = tr.phi(a) if tr.n >= MIN_MONITOR_EPOCHS else (np.full(3, math.nan),) * 2
+        return MountsSnapshot(self.monitor(fr_ref), self.time_offsets(), self.flexure())
+
+    def monitor(self, fr_ref) -> tuple:
+        """``(sensor, rot_arcsec (3,), sigma_arcsec (3,))`` per non-reference sensor: the
+        estimate as it stands now at the reference frame's roll and pitch (NaN without
+        them or before :data:`MIN_MONITOR_EPOCHS` epochs)."""
+        a = self._angles(fr_ref) if fr_ref is not None and fr_ref.ship.solved else None
+        out = []
+        for k, tr in self._tracks.items():
+            if a is not None and tr.n >= MIN_MONITOR_EPOCHS:
+                rot, sig = tr.phi(a)
             else:
                 rot, sig = np.full(3, math.nan), np.full(3, math.nan)
-            monitor.append((self.configs[k].name, rot, sig))
-        return MountsSnapshot(tuple(monitor), self.time_offsets(), self.flexure())
+            out.append((self.configs[k].name, rot, sig))
+        return tuple(out)
 
     def time_offsets(self) -> dict:
         out = {}

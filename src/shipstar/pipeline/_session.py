@@ -159,7 +159,7 @@ def session_start(lists) -> tuple:
 
 
 def process_session(configs, frames, track, weather, options=None, *, reference: str | None = None,
-                    databases=None, lookup=None, progress=None) -> SessionResult:
+                    databases=None, lookup=None, progress=None, smooth_lag_s: float = 0.0) -> SessionResult:
     """Frames of one or more sensors -> per-frame and fused ship attitude over a session.
 
     One pass in time order over all sensors' frames: each frame is solved by its sensor's
@@ -184,6 +184,10 @@ def process_session(configs, frames, track, weather, options=None, *, reference:
     databases : dict of name -> StarDatabase, optional
     lookup : StarLookup, optional
     progress : callable(sensor, done, total), optional
+    smooth_lag_s : float
+        Fuse each epoch with the mounts' clock and flexure estimates of the epochs up to
+        this many seconds later (a fixed-lag smoother; 0: causal, as ``shipstar live``;
+        ``shipstar measure`` uses 60 s).
 
     Returns
     -------
@@ -210,7 +214,7 @@ def process_session(configs, frames, track, weather, options=None, *, reference:
     start = session_start(lists)
     procs = [SensorProcessor(c, track, weather, options, database=(databases or {}).get(c.name), lookup=lookup)
              for c in configs]
-    engine = SessionEngine(configs, options, start_utc_jd=start, reference=ref)
+    engine = SessionEngine(configs, options, start_utc_jd=start, reference=ref, smooth_lag_s=smooth_lag_s)
     results, emissions = [[] for _ in configs], []
     for t, s, k, frame in merged_frames(lists, start):
         fr = procs[s].process(frame, k, t)
