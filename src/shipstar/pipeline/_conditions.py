@@ -31,8 +31,6 @@ from collections import deque
 
 import numpy as np
 
-from shipstar.extract._background import median
-
 __all__ = ["ConditionMonitor", "NoiseFloor", "NoiseShape", "expected_stars", "CLOUDED_REASON", "MOON_REASON", "SUN_REASON",
            "CLOUDED_FRACTION", "ENVIRONMENT_REASONS"]
 

@@ -132,7 +132,7 @@ class MotionFit:
 
     def alpha_at(self, t_s: float) -> np.ndarray:
         """Angular acceleration (3,) rad/s^2, body axes (derivative of :meth:`omega_at`)."""
-        r, rd, rdd = self.r(t_s), self.r(t_s, 1), self.r(t_s, 2)
+        r, rdd = self.r(t_s), self.r(t_s, 2)          # d/dt of rd - r x rd / 2 (rd x rd = 0)
         return rdd - 0.5 * _cross(r, rdd)
 
     def C_at(self, t_s: float) -> np.ndarray:
