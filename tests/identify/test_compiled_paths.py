@@ -125,6 +125,48 @@ def test_the_compiled_look_up_refuses_a_database_not_sorted_by_key(db12):
         _DbBuffers(bad)
 
 
+def test_the_compiled_database_check_refuses_corrupted_arrays(db12):
+    # a corrupted (cached, memory-mapped) array raises before any kernel reads it: every
+    # index the kernels follow must stay inside its array
+    buf = _DbBuffers(db12)
+    u64 = db12.u_icrs.astype(np.float64)
+    u64 /= np.linalg.norm(u64, axis=1)[:, None]
+    assert np.allclose(buf.cell_u, u64[db12.cell_index.astype(np.intp)], rtol=0, atol=1e-15)
+    n = db12.n_stars
+
+    def with_item(name, index, value):
+        a = getattr(db12, name).copy()
+        a[index] = value
+        return dataclasses.replace(db12, **{name: a})
+
+    counts = np.diff(db12.key_hi_start)
+    h = int(np.flatnonzero(counts >= 1)[0]) + 1            # a segment end inside the patterns
+    c = int(np.flatnonzero(np.diff(db12.cell_start) >= 1)[0]) + 1
+    bad = [with_item("pattern_stars", (db12.n_patterns // 2, 2), n),              # star row n
+           with_item("pattern_stars", (db12.n_patterns - 1, 3), n + 7),
+           with_item("cell_index", db12.cell_index.shape[0] // 3, n),
+           with_item("key_hi_start", h, int(db12.key_hi_start[h - 1]) - 1),       # decreasing
+           with_item("key_hi_start", db12.key_hi_start.shape[0] - 1, db12.n_patterns - 1),
+           with_item("cell_start", c, int(db12.cell_start[c - 1]) - 1),
+           with_item("cell_start", 0, 1),
+           dataclasses.replace(db12, cell_index=db12.cell_index[:-1])]            # truncated
+    for db in bad:
+        with pytest.raises(ValueError, match="inconsistent"):
+            _DbBuffers(db)
+
+
+def test_a_database_of_uint32_star_rows_solves_as_its_uint16_copy(db12, cam12):
+    # the compiled look-up reads pattern star rows as stored, uint16 or uint32
+    assert db12.pattern_stars.dtype == np.uint16
+    wide = dataclasses.replace(db12, pattern_stars=db12.pattern_stars.astype(np.uint32))
+    assert _DbBuffers(wide).pstars.dtype == np.uint32
+    rng = np.random.default_rng(5)
+    for C in random_attitudes(3, rng):
+        xy = simulate_frame(db12, cam12, C, rng).xy_px
+        _same(identify_lost_in_space(xy, db12, camera=cam12),
+              identify_lost_in_space(xy, wide, camera=cam12))
+
+
 def test_tracking_and_its_fallback_both_failing_answer_unsolved(db12, cam12):
     """Four random points: the one-call tracking path fails, the lost-in-space fallback too;
     the answer is an unsolved identification of the four rows naming both reasons (the

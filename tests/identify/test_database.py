@@ -107,6 +107,57 @@ def test_cache_file_with_other_parameters_or_version_is_rebuilt(tmp_cache, monke
     assert len(list(tmp_cache.glob("stardb_*.bin"))) == 2
 
 
+def test_cache_file_holds_the_kernel_arrays_and_an_old_file_is_completed(tmp_cache):
+    from shipstar.identify._kernels import _DbBuffers
+
+    built = build_database(12.0, mag_limit=5.0)
+    assert _database.kernel_arrays(built) is None                 # built here: made in memory
+    fresh = _DbBuffers(built)
+    (path,) = tmp_cache.glob("stardb_*.bin")
+    _database._MEMO.clear()
+    db = build_database(12.0, mag_limit=5.0)
+    u64, cell_u = _database.kernel_arrays(db)                     # read: mapped from the file
+    assert not u64.flags.writeable and not cell_u.flags.writeable
+    np.testing.assert_array_equal(u64, fresh.u64)
+    np.testing.assert_array_equal(cell_u, fresh.cell_u)
+    mapped = _DbBuffers(db)
+    assert mapped.cell_u is cell_u or np.shares_memory(mapped.cell_u, cell_u)
+    # a file written before the kernel arrays: read as it is, then completed once
+    got = _database._read_header(path)
+    head, start = got
+    old = dict(head)
+    del old["kernel_arrays"]
+    old["data_bytes"] = max(o + int(np.prod(s)) * np.dtype(d).itemsize
+                            for d, s, o in old["arrays"].values())
+    old["data_bytes"] += -old["data_bytes"] % 64
+    raw = path.read_bytes()
+    text = __import__("json").dumps(old, sort_keys=True).encode()
+    text += b" " * (-(16 + 8 + len(text)) % 64)
+    path.write_bytes(raw[:16] + len(text).to_bytes(8, "little") + text
+                     + raw[start:start + old["data_bytes"]])
+    _database._MEMO.clear()
+    again = build_database(12.0, mag_limit=5.0)
+    assert again.build_time_s == built.build_time_s               # read, not rebuilt
+    assert _database._read_header(path)[0].get("kernel_arrays")   # completed
+    _database._MEMO.clear()
+    np.testing.assert_array_equal(_database.kernel_arrays(build_database(12.0, mag_limit=5.0))[1],
+                                  fresh.cell_u)
+
+
+def test_stored_kernel_arrays_that_are_not_the_stars_are_refused(tmp_cache):
+    from shipstar.identify._kernels import _DbBuffers
+
+    build_database(12.0, mag_limit=5.0)
+    _database._MEMO.clear()
+    db = build_database(12.0, mag_limit=5.0)
+    u64, cell_u = _database.kernel_arrays(db)
+    shifted = np.roll(cell_u, 1, axis=0)                          # misplaced rows
+    for stored in ((u64, shifted), (u64[::-1].copy(), cell_u), (2.0 * u64, cell_u)):
+        _database._KERNEL[db] = stored
+        with pytest.raises(ValueError, match="inconsistent"):
+            _DbBuffers(db)
+
+
 @pytest.mark.parametrize("args, kwargs, words", [
     ((0.05,), {}, "fov_x_deg"),
     ((90.0,), {}, "fov_x_deg"),

@@ -4,7 +4,8 @@ Integer data keep their dtype (an 8-bit JPEG stays ``uint8``, a 12-bit frame in 
 16-bit PNG or FITS stays ``uint16``) so that the saturation level can be inferred.
 FITS files are read by :func:`shipstar._fitsio.read_fits_image`, shipstar's one FITS
 reader (rows flipped for ``ROWORDER = 'BOTTOM-UP'``, so row 0 is always the top).
-Colour images become luminance with ITU-R 601 weights (Pillow's ``convert("L")``).
+Colour images become luminance with ITU-R 601 weights (Pillow's ``convert("L")``; a
+colour JPEG's stored luminance is decoded directly, the same pixels but for rounding).
 """
 
 from __future__ import annotations
@@ -59,6 +60,10 @@ def _read_pillow(path: Path, kind: str) -> np.ndarray:
 
     try:
         with Image.open(path) as im:
+            if kind == "JPEG" and im.mode == "RGB":
+                # a colour JPEG stores the 601 luminance (Y of YCbCr): decoded alone (no
+                # chroma, no RGB), the same pixels as convert("L") but for rounding
+                im.draft("L", None)
             im.load()
             if getattr(im, "n_frames", 1) > 1:
                 raise ShipstarError(f"{path} holds {im.n_frames} frames; give one frame per file")

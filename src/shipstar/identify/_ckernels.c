@@ -282,7 +282,8 @@ static long cell_of_one(const double *v, long n)
 typedef struct {
     const double *u64;          /* (S, 3) */
     const float *u32;           /* (S, 3) */
-    const uint32_t *pstars;     /* (P, 4) */
+    const void *pstars;         /* (P, 4), uint16 (pstars16) or uint32 */
+    int pstars16;
     const uint16_t *key_lo;     /* (P,) */
     const int32_t *key_hi_start;
     const int32_t *cell_start;
@@ -290,6 +291,17 @@ typedef struct {
     const double *cell_u;       /* (M, 3): u64[cell_index], read in cell order */
     long grid_n, key_bits, lo_bits, bins, n_patterns_db;
 } Db;
+
+/* the 4 star rows of pattern `row` */
+static inline void pattern_row(const Db *db, long row, uint32_t ps[4])
+{
+    if (db->pstars16) {
+        const uint16_t *p = (const uint16_t *)db->pstars + 4 * row;
+        ps[0] = p[0]; ps[1] = p[1]; ps[2] = p[2]; ps[3] = p[3];
+    } else {
+        memcpy(ps, (const uint32_t *)db->pstars + 4 * row, 4 * sizeof(uint32_t));
+    }
+}
 
 typedef struct {
     long m, cap, n_in;
@@ -839,12 +851,13 @@ static int pattern_candidates(Lis *L, const Db *db, long owner, const double *e6
         for (; row < e && db->key_lo[row] == lo; row++) {
             if (n_hit == 512) { more = 1; break; }
             hits[n_hit++] = row;
-            __builtin_prefetch(db->pstars + 4 * row);
+            __builtin_prefetch((const char *)db->pstars + (db->pstars16 ? 8 : 16) * row);
         }
     }
     if (more) n_hit = 0;                /* (never seen) too many: the plain loop below */
     for (int i = 0; i < n_hit; i++) {
-        const uint32_t *ps = db->pstars + 4 * hits[i];
+        uint32_t ps[4];
+        pattern_row(db, hits[i], ps);
         for (int a = 0; a < 4; a++) __builtin_prefetch(db->u32 + 3 * ps[a]);
     }
     for (int i = 0; i < (more ? n_probe : n_hit); i++) {
@@ -852,7 +865,8 @@ static int pattern_candidates(Lis *L, const Db *db, long owner, const double *e6
       long row_b = more ? db->key_hi_start[his[i] + 1] : hits[i] + 1;
       for (long row = row_a; row < row_b; row++) {
             if (more && db->key_lo[row] != los[i]) continue;
-            const uint32_t *ps = db->pstars + 4 * row;
+            uint32_t ps[4];
+            pattern_row(db, row, ps);
             /* the largest edge first (one acos): most chance hits fail the size test */
             double dots[6], dmin = INFINITY;
             int emin = 0;
@@ -1028,6 +1042,7 @@ static void lis_free(Lis *L)
 static void db_from(Db *db, Py_buffer *b, const int64_t *I)
 {
     db->u64 = b[0].buf; db->u32 = b[1].buf; db->pstars = b[2].buf; db->key_lo = b[3].buf;
+    db->pstars16 = b[2].len == (Py_ssize_t)(8 * I[5]);     /* else uint32 (db_prepare checked) */
     db->key_hi_start = b[4].buf; db->cell_start = b[5].buf; db->cell_index = b[6].buf;
     db->cell_u = b[7].buf;
     db->grid_n = (long)I[1]; db->key_bits = (long)I[2]; db->lo_bits = (long)I[3]; db->bins = (long)I[4];
@@ -1751,6 +1766,105 @@ static PyObject *py_scatter(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
+/* The consistency of a database's arrays (every index the kernels follow stays inside
+ * its array) and its cell vectors, in one pass over each array: 0 consistent (cell_u
+ * filled when `gather`), 1 offsets / star rows out of range, 2 a key bucket not sorted
+ * by key_lo, 3 stored vectors (not `gather`) that are not those of the star rows. */
+static int db_check_gather(const void *pstars, int p16, long P, const uint16_t *key_lo,
+                           const int32_t *khs, long n_seg, const int32_t *cs, long n_cells,
+                           const uint32_t *ci, long M, const double *u64, const float *u32,
+                           long S, double *cell_u, int gather)
+{
+    if (khs[0] != 0 || khs[n_seg] != P || cs[0] != 0 || cs[n_cells] != M) return 1;
+    int bad = 0;
+    for (long h = 0; h < n_seg; h++) bad |= khs[h + 1] < khs[h];
+    for (long c = 0; c < n_cells; c++) bad |= cs[c + 1] < cs[c];
+    if (bad) return 1;
+    uint32_t mx = 0;
+    if (p16) {
+        const uint16_t *p = pstars;
+        uint16_t m16 = 0;
+        for (long i = 0; i < 4 * P; i++) m16 = p[i] > m16 ? p[i] : m16;
+        mx = m16;
+    } else {
+        const uint32_t *p = pstars;
+        for (long i = 0; i < 4 * P; i++) mx = p[i] > mx ? p[i] : mx;
+    }
+    if (P > 0 && (long)mx >= S) return 1;
+    mx = 0;
+    for (long q = 0; q < M; q++) mx = ci[q] > mx ? ci[q] : mx;
+    if (M > 0 && (long)mx >= S) return 1;
+    /* the look-up reads a bucket's rows as sorted by key_lo: every descent of key_lo
+     * (one linear pass) must be at the first row of a bucket */
+    long descents = 0, at_starts = 0;
+    for (long r = 1; r < P; r++) descents += key_lo[r] < key_lo[r - 1];
+    for (long h = 0; h < n_seg; h++) {
+        long r = khs[h];
+        at_starts += r > 0 && r < khs[h + 1] && key_lo[r] < key_lo[r - 1];
+    }
+    if (descents != at_starts) return 2;
+    if (gather) {
+        for (long q = 0; q < M; q++) {
+            const double *u = u64 + 3 * (long)ci[q];
+            double *o = cell_u + 3 * q;
+            o[0] = u[0]; o[1] = u[1]; o[2] = u[2];
+        }
+        return 0;
+    }
+    /* stored (memory-mapped) vectors: a sample of rows, and the last, as made here (a
+     * misplaced or foreign array is refused; they index nothing, so a changed value
+     * elsewhere can only spoil a match, as a changed u_icrs would) */
+    for (long q = 0; q < M; q = q + 61 < M || q == M - 1 ? q + 61 : M - 1) {
+        const double *u = u64 + 3 * (long)ci[q], *o = cell_u + 3 * q;
+        if (o[0] != u[0] || o[1] != u[1] || o[2] != u[2]) return 3;
+    }
+    for (long i = 0; i < S; i = i + 61 < S || i == S - 1 ? i + 61 : S - 1) {
+        const double *u = u64 + 3 * i;
+        const float *f = u32 + 3 * i;
+        double n2 = u[0] * u[0] + u[1] * u[1] + u[2] * u[2];
+        if (!(fabs(n2 - 1.0) < 1e-12 && fabs(u[0] - f[0]) < 1e-6 && fabs(u[1] - f[1]) < 1e-6
+              && fabs(u[2] - f[2]) < 1e-6))
+            return 3;
+    }
+    return 0;
+}
+
+/* db_prepare(pstars (P, 4) uint16 or uint32, key_lo (P,) uint16, key_hi_start (H + 1,)
+ * int32, cell_start (C + 1,) int32, cell_index (M,) uint32, u64 (S, 3) float64,
+ * cell_u (M, 3) float64, u32 (S, 3) float32, gather) -> 0 consistent (gather: cell_u =
+ * u64[cell_index] written; else the stored cell_u and u64 checked on a sample), 1
+ * offsets or star rows out of range, 2 a key bucket not sorted by key_lo, 3 stored
+ * vectors not those of the stars (see db_check_gather); the sizes are checked here, the
+ * dtypes by the caller (_kernels.py) */
+static PyObject *py_db_prepare(PyObject *self, PyObject *args)
+{
+    Py_buffer bp, bk, bh, bs, bi, bu, bo, bf;
+    int gather;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*p", &bp, &bk, &bh, &bs, &bi, &bu, &bo, &bf, &gather))
+        return NULL;
+    if (gather && bo.readonly) {
+        PyBuffer_Release(&bp); PyBuffer_Release(&bk); PyBuffer_Release(&bh); PyBuffer_Release(&bs);
+        PyBuffer_Release(&bi); PyBuffer_Release(&bu); PyBuffer_Release(&bo); PyBuffer_Release(&bf);
+        PyErr_SetString(PyExc_ValueError, "db_prepare: cell_u must be writable to be made");
+        return NULL;
+    }
+    long P = (long)(bk.len / sizeof(uint16_t)), n_seg = (long)(bh.len / sizeof(int32_t)) - 1;
+    long n_cells = (long)(bs.len / sizeof(int32_t)) - 1, M = (long)(bi.len / sizeof(uint32_t));
+    long S = (long)(bu.len / (3 * sizeof(double)));
+    int p16 = bp.len == (Py_ssize_t)(8 * P), rc = 1;
+    if (n_seg >= 0 && n_cells >= 0 && (p16 || bp.len == (Py_ssize_t)(16 * P))
+            && bo.len == (Py_ssize_t)(3 * sizeof(double) * M)
+            && bf.len == (Py_ssize_t)(3 * sizeof(float) * S)) {
+        Py_BEGIN_ALLOW_THREADS
+        rc = db_check_gather(bp.buf, p16, P, bk.buf, bh.buf, n_seg, bs.buf, n_cells, bi.buf, M,
+                             bu.buf, bf.buf, S, (double *)bo.buf, gather);
+        Py_END_ALLOW_THREADS
+    }
+    PyBuffer_Release(&bp); PyBuffer_Release(&bk); PyBuffer_Release(&bh); PyBuffer_Release(&bs);
+    PyBuffer_Release(&bi); PyBuffer_Release(&bu); PyBuffer_Release(&bo); PyBuffer_Release(&bf);
+    return PyLong_FromLong(rc);
+}
+
 static PyObject *py_binom_tail(PyObject *self, PyObject *args)
 {
     long n, k;
@@ -1776,6 +1890,7 @@ static PyMethodDef methods[] = {
     {"pinhole_unproject", py_pinhole_unproject, METH_VARARGS, "see _kernels.py"},
     {"unit_rows", py_unit_rows, METH_VARARGS, "see _kernels.py"},
     {"scatter", py_scatter, METH_VARARGS, "see _kernels.py"},
+    {"db_prepare", py_db_prepare, METH_VARARGS, "database consistency and cell vectors (see _kernels.py)"},
     {"binom_tail", py_binom_tail, METH_VARARGS, "P(Bin(n, p) >= k)"},
     {"tail_bound", py_tail_bound, METH_VARARGS, "C(n, k) p^k, a bound on P(Bin(n, p) >= k)"},
     {NULL, NULL, 0, NULL}};

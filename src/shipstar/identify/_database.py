@@ -24,6 +24,7 @@ import hashlib
 import json
 import os
 import time
+import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -371,6 +372,13 @@ def build_database_from_params(params: DatabaseParams, catalog=None) -> StarData
 _ARRAYS = ("hip", "u_icrs", "mag", "pattern_stars", "key_lo", "key_hi_start", "cell_start",
            "cell_index")
 _MEMO: dict[str, StarDatabase] = {}
+#: arrays the compiled kernels read that derive from the stored ones: the float64 unit
+#: vectors and the star vectors of every sky-grid cell in cell order (14 MB for the
+#: deepest band).  Written after the stored arrays and memory-mapped, so that a process
+#: does not make them again (:class:`._kernels._DbBuffers`); a file without them (written
+#: before they were) is completed once when read.  Readers that do not know them skip them.
+_KERNEL_ARRAYS = ("u64", "cell_u")
+_KERNEL: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 #: cache file layout (independent of DATABASE_VERSION, the pattern rules): a JSON header
 #: then the raw arrays, 64-byte aligned, read by memory-mapping (no copy, no zip)
 _FILE_FORMAT = 2
@@ -452,36 +460,60 @@ def _read(path, params: DatabaseParams, catalog_key: str) -> StarDatabase | None
             arrays[name] = np.frombuffer(buf, dtype=np.dtype(dtype), count=count,
                                          offset=start + offset).reshape(shape)
         os.utime(path)                                   # last use, for the LRU bound
-        return StarDatabase(params=params, **arrays, grid_n=int(head["grid_n"]),
-                            query_radius_rad=float(head["query_radius_rad"]),
-                            build_time_s=float(head["build_time_s"]),
-                            catalog_digest=str(head["catalog_digest"]))
+        db = StarDatabase(params=params, **arrays, grid_n=int(head["grid_n"]),
+                          query_radius_rad=float(head["query_radius_rad"]),
+                          build_time_s=float(head["build_time_s"]),
+                          catalog_digest=str(head["catalog_digest"]))
+        kern = head.get("kernel_arrays")
+        if kern:
+            shapes = {"u64": (db.n_stars, 3), "cell_u": (db.cell_index.shape[0], 3)}
+            got = []
+            for name in _KERNEL_ARRAYS:
+                dtype, shape, offset = kern[name]
+                if np.dtype(dtype) != np.float64 or tuple(shape) != shapes[name]:
+                    break
+                got.append(np.frombuffer(buf, dtype=np.float64, count=3 * shape[0],
+                                         offset=start + offset).reshape(shape))
+            else:
+                _KERNEL[db] = tuple(got)
+        return db
     except (OSError, ValueError, KeyError, TypeError, ShipstarError):
         return None
+
+
+def kernel_arrays(db):
+    """``(u64 (S, 3), cell_u (M, 3))``, float64 read only, stored with a database read
+    from the cache (see :data:`_KERNEL_ARRAYS`); None for any other database."""
+    return _KERNEL.get(db)
 
 
 def _write(path, db: StarDatabase, catalog_key: str) -> None:
     from shipstar._atomic import atomic_path
 
+    from shipstar.identify._kernels import db_buffers
+
+    buf = db_buffers(db)                                 # checks the arrays, makes the derived ones
+    arrays = [(name, getattr(db, name)) for name in _ARRAYS]
+    arrays += [(name, getattr(buf, name)) for name in _KERNEL_ARRAYS]
     layout = {}
     offset = 0
-    for name in _ARRAYS:
-        a = getattr(db, name)
+    for name, a in arrays:
         layout[name] = [a.dtype.str, list(a.shape), offset]
         offset += -(-a.nbytes // _ALIGN) * _ALIGN
     head = {"params_json": db.params.as_json(), "catalog_key": catalog_key,
             "catalog_digest": db.catalog_digest, "grid_n": int(db.grid_n),
             "query_radius_rad": float(db.query_radius_rad), "build_time_s": float(db.build_time_s),
-            "n_stars": db.n_stars, "n_patterns": db.n_patterns, "arrays": layout}
+            "n_stars": db.n_stars, "n_patterns": db.n_patterns,
+            "arrays": {name: layout[name] for name in _ARRAYS},
+            "kernel_arrays": {name: layout[name] for name in _KERNEL_ARRAYS}}
     head["data_bytes"] = offset                          # offsets: from the data start
     text = json.dumps(head, sort_keys=True).encode()
     text += b" " * (-(len(_MAGIC) + 8 + len(text)) % _ALIGN)
     try:  # the cache only saves time: an unwritable directory is not an error
         with atomic_path(path) as tmp, open(tmp, "wb") as fh:
             fh.write(_MAGIC + len(text).to_bytes(8, "little") + text)
-            for name in _ARRAYS:
-                a = np.ascontiguousarray(getattr(db, name))
-                fh.write(a.tobytes())
+            for _, a in arrays:
+                fh.write(np.ascontiguousarray(a).tobytes())
                 fh.write(b"\0" * (-a.nbytes % _ALIGN))
     except (OSError, ShipstarError):
         return
@@ -505,6 +537,8 @@ def cached_database(params: DatabaseParams, use_cache: bool = True) -> StarDatab
     if db is None:
         db = build_database_from_params(params)
         _write(path, db, key)
+    elif kernel_arrays(db) is None:                      # a file of an earlier shipstar
+        _write(path, db, key)                            # completed with the kernel arrays
     if len(_MEMO) >= 8:
         _MEMO.pop(next(iter(_MEMO)))
     _MEMO[memo_key] = db
