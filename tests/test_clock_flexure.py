@@ -209,3 +209,41 @@ def test_engine_flush_gives_out_held_epochs(flexure):
     held = eng.flush()
     assert [e.epoch.index for e in held if e.epoch is not None] == list(range(len(held)))
     assert len(held) >= len(res.epochs) - 1 and eng.flush() == []
+
+
+# -- the wave gains in the model (pipeline._mounts._Track.solve) ------------------------------
+
+def _synthetic_track(G_roll, G_pitch, seed=3, n=1200, noise_arcsec=8.0):
+    """A _Track fed n epochs of d = s + G a + omega delta + e at 10 Hz (known answer)."""
+    from shipstar.pipeline._mounts import _Track
+
+    rng = np.random.default_rng(seed)
+    s_true, delta_ms = np.array([3.0, -2.0, 4.0]), 3.0
+    tr = _Track()
+    for k in range(n):
+        t = 0.1 * k
+        a = np.array([5.0 * math.sin(2 * math.pi * t / 8.0), 2.0 * math.sin(2 * math.pi * t / 6.0 + 0.7)])
+        omega = np.array([5.0 * 3600 * 2 * math.pi / 8 * math.cos(2 * math.pi * t / 8.0),
+                          2.0 * 3600 * 2 * math.pi / 6 * math.cos(2 * math.pi * t / 6.0 + 0.7), 200.0]) * 1e-3
+        y = s_true + np.asarray(G_roll) * a[0] + np.asarray(G_pitch) * a[1] + omega * delta_ms \
+            + rng.normal(0, noise_arcsec, 3)
+        tr.add(t, y, np.eye(3) / noise_arcsec ** 2, a, omega)
+    return tr
+
+
+def test_a_wave_gain_group_is_in_the_model_only_when_it_is_there():
+    roll_only = _synthetic_track([4.0, 0.0, 0.0], [0.0, 0.0, 0.0])
+    assert roll_only.gains_used == [True, False]
+    assert np.all(roll_only.theta[6:9] == 0.0) and np.all(roll_only.cov[6:9, :] == 0.0)
+    assert roll_only.theta[3] == pytest.approx(4.0, abs=4 * math.sqrt(roll_only.cov[3, 3]))
+    # the flexure at a pitched epoch: the model in use is closer to the truth than the full fit
+    a = np.array([3.0, 2.0])
+    full_phi = np.r_[np.eye(3), a[0] * np.eye(3), a[1] * np.eye(3)].T @ roll_only.theta_full[:9]
+    used_phi, used_sig = roll_only.phi(a)
+    true_phi = np.array([3.0 + 12.0, -2.0, 4.0])
+    assert np.linalg.norm(used_phi - true_phi) < np.linalg.norm(full_phi - true_phi) + 0.05
+    assert np.all(np.abs(used_phi - true_phi) < 4 * used_sig)
+    both = _synthetic_track([4.0, 0.0, 0.0], [0.0, 3.0, 0.0])
+    assert both.gains_used == [True, True]
+    assert both.theta[7] == pytest.approx(3.0, abs=4 * math.sqrt(both.cov[7, 7]))
+    assert abs(both.clock()[0] - 0.003) < 4 * both.clock()[1]
