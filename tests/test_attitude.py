@@ -344,8 +344,31 @@ def test_covariance_from_residuals_when_sigma_unknown():
         sol = solve_attitude(perturb(rng, w_true, sigma), v)
         assert sol.solved and sol.n_used == 20
         ratios.append(np.trace(sol.covariance_rad2) / np.trace(crb))
-    # E[sigma_hat^2] = sigma^2 with 2N - 3 degrees of freedom
-    assert abs(np.mean(ratios) - 1.0) < 0.05
+    # E[sigma_hat^2] = sigma^2 with 2N - 3 = 37 degrees of freedom, times nu / (nu - 2)
+    assert abs(np.mean(ratios) - 37.0 / 35.0) < 0.05
+
+
+def test_errors_over_sigmas_from_few_residuals_are_honest():
+    """With the noise level from the solution's own 5 residuals (nu = 7) the error over
+    its sigma is Student's t: RMS sqrt(7 / 5) = 1.18 without the t factor, 1 with it."""
+    from shipstar.attitude._solve import t_factor
+
+    rng = np.random.default_rng(21)
+    C = random_rotation(rng)
+    w_true = field(rng, 5)
+    v = w_true @ C.T
+    sigma = 5 * ASEC2RAD
+    chi2 = []
+    for _ in range(3000):
+        sol = solve_attitude(perturb(rng, w_true, sigma), v, reject_outliers=False)
+        assert sol.solved and sol.n_used == 5
+        d = sol.C_ref_from_body @ C.T                     # estimated minus true, reference axes
+        e = 0.5 * np.array([d[2, 1] - d[1, 2], d[0, 2] - d[2, 0], d[1, 0] - d[0, 1]])
+        e = C.T @ e                                       # body axes, as the covariance
+        chi2.append(float(e @ np.linalg.solve(sol.covariance_rad2, e)) / 3.0)
+    assert t_factor(5) == pytest.approx(7.0 / 5.0)
+    assert np.mean(chi2) == pytest.approx(1.0, abs=0.06)
+    assert np.mean(chi2) * t_factor(5) > 1.3            # what it was without the factor
 
 
 def test_quaternion_and_residuals_are_consistent():
