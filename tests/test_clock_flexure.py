@@ -247,3 +247,33 @@ def test_a_wave_gain_group_is_in_the_model_only_when_it_is_there():
     assert both.gains_used == [True, True]
     assert both.theta[7] == pytest.approx(3.0, abs=4 * math.sqrt(both.cov[7, 7]))
     assert abs(both.clock()[0] - 0.003) < 4 * both.clock()[1]
+
+
+def test_the_applied_clock_offsets_uncertainty_travels_with_the_installation():
+    """A shift of sigma_delta at deck rate omega turns the sensor's deck attitude by
+    omega sigma_delta: the flexed installation carries omega omega^T sigma_delta^2."""
+    from types import SimpleNamespace
+
+    from shipstar.pipeline._mounts import MountEstimator, is_flexed
+    from shipstar.units import ASEC2RAD
+
+    tr = _synthetic_track([0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
+    assert tr.clock_applied and tr.flex_applied                     # 3 ms; the static [3, -2, 4]''
+    spec = sea_session(duration_s=1.0)
+    configs = [SensorConfig(s.name, s.camera, Installation.from_matrix(s.name, s.camera.name, s.C_deck_from_sensor))
+               for s in spec.sensors]
+    est = MountEstimator(configs, 0)
+    est._tracks[1] = tr
+    fr_ref = SimpleNamespace(ship=SimpleNamespace(solved=True, roll_rad=0.0, pitch_rad=0.0))
+    omega = np.array([0.07, 0.01, -0.02])                              # rad/s, deck axes (4 deg/s roll)
+    a = np.zeros(2)
+    with_rate = est.configs_for(fr_ref, omega)
+    without = est.configs_for(fr_ref)
+    assert is_flexed(with_rate[1]) and not is_flexed(with_rate[0])
+    clock_term = with_rate[1].installation.mount_covariance_rad2 - without[1].installation.mount_covariance_rad2
+    np.testing.assert_allclose(clock_term, np.outer(omega, omega) * 1e-6 * tr.cov[9, 9], rtol=1e-12)
+    np.testing.assert_allclose(without[1].installation.mount_covariance_rad2, tr.phi_cov(a) * ASEC2RAD ** 2)
+    np.testing.assert_array_equal(with_rate[1].installation.C_deck_from_sensor,
+                                  without[1].installation.C_deck_from_sensor)
+    sigma_arcsec = math.sqrt(float(omega @ clock_term @ omega) / float(omega @ omega)) / ASEC2RAD   # along omega
+    assert sigma_arcsec == pytest.approx(math.sqrt(tr.cov[9, 9]) * 1e-3 * np.linalg.norm(omega) / ASEC2RAD)

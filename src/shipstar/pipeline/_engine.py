@@ -263,7 +263,6 @@ class SessionEngine:
         t_k, paired, offsets, motion, fit, shifts, configs_then, vf = inputs
         epoch = emission.epoch
         fr_ref = paired[self.reference]
-        configs = self._mounts.configs_for(fr_ref)
         offsets = list(offsets)
         changes = [0.0 if p is None or s == self.reference or not self.options.compensate_motion
                    else self._mounts.shift_s(s) - shifts[s] for s, p in enumerate(paired)]
@@ -276,6 +275,7 @@ class SessionEngine:
             retimed = fit is not None
             if retimed:
                 offsets = [o + c for o, c in zip(offsets, changes)]
+        configs = self._mounts.configs_for(fr_ref, None if fit is None else fit.omega_at(t_k))
         if retimed or any(is_flexed(c) for c in (*configs, *configs_then)):
             epoch = fuse_epoch(epoch.index, t_k, self.start_utc_jd, configs, paired, offsets,
                                fit if retimed else motion, self.options, self.roles, reference=self.reference,
@@ -315,14 +315,15 @@ class SessionEngine:
         motion = None
         if self.options.compensate_motion and any(abs(o) > 1e-6 for o in offsets if math.isfinite(o)):
             motion = self._motion.fit(limits)
-        configs = self._mounts.configs_for(fr_ref) if self._mounts is not None else self.configs
-        vf = self._mounts.variance_factor() if self._mounts is not None else 1.0
+        shifts, fit, configs, vf = None, None, self.configs, 1.0
+        if self._mounts is not None:                    # clock offsets and flexure (pipeline._mounts)
+            fit = motion if motion is not None else self._motion.fit(limits)
+            configs = self._mounts.configs_for(fr_ref, None if fit is None else fit.omega_at(t_k))
+            vf = self._mounts.variance_factor()
         epoch = fuse_epoch(self.n_epochs, t_k, self.start_utc_jd, configs, paired, offsets, motion,
                            self.options, self.roles, reference=self.reference, variance_factor=vf)
-        shifts, fit = None, None
-        if self._mounts is not None:                    # clock offsets and flexure (pipeline._mounts)
+        if self._mounts is not None:
             shifts = [0.0 if p is None else t_k + o - self.t_s(p) for p, o in zip(paired, offsets)]
-            fit = motion if motion is not None else self._motion.fit(limits)
             epoch = replace(epoch, mounts=self._mounts.update(t_k, epoch, paired, shifts, configs, fit))
         self.n_epochs += 1
         self._motion.prune(t_k - self.smooth_lag_s)     # the held epochs' deck motion stays
