@@ -30,7 +30,7 @@ from bench_ship_attitude import frames_of, tables  # noqa: E402
 DURATION_S = 8.0
 
 
-def _run(conditions, reference=None):
+def _run(conditions, reference=None, smooth_lag_s=0.0):
     spec = sea_session(duration_s=DURATION_S)
     if conditions is not None:
         spec = apply_conditions(spec, load_conditions(conditions))
@@ -39,7 +39,7 @@ def _run(conditions, reference=None):
     configs = [SensorConfig(s.name, s.camera, Installation.from_matrix(s.name, s.camera.name, s.C_deck_from_sensor))
                for s in spec.sensors]
     res = process_session(configs, [frames_of(cf, s.name) for s in spec.sensors], track, weather,
-                          PipelineOptions(), reference=reference)
+                          PipelineOptions(), reference=reference, smooth_lag_s=smooth_lag_s)
     return spec, res, truth
 
 
@@ -140,17 +140,8 @@ def test_monitor_csv_columns_and_rows(flexure, tmp_path):
 
 # -- the fixed-lag smoother (measure --smooth-lag-s) ------------------------------------------
 
-def _smoothed(conditions, lag_s=60.0):
-    spec = sea_session(duration_s=DURATION_S)
-    if conditions is not None:
-        spec = apply_conditions(spec, load_conditions(conditions))
-    cf = simulate_centroids(spec)
-    track, weather, truth = tables(spec)
-    configs = [SensorConfig(s.name, s.camera, Installation.from_matrix(s.name, s.camera.name, s.C_deck_from_sensor))
-               for s in spec.sensors]
-    res = process_session(configs, [frames_of(cf, s.name) for s in spec.sensors], track, weather,
-                          PipelineOptions(), smooth_lag_s=lag_s)
-    return spec, res, truth
+def _smoothed(conditions):
+    return _run(conditions, smooth_lag_s=60.0)
 
 
 def test_smoother_leaves_a_rigid_deck_alone(clean):

@@ -4,26 +4,20 @@ scatter screen (a detection far outside the frame's own centroid scatter is not 
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 import pytest
 
-from shipstar.frames import matrix_from_q_wxyz
 from shipstar.identify import identify_lost_in_space, identify_tracking
 from shipstar.identify._field import field_from_camera
 from shipstar.identify._kernels import _DbBuffers
 from shipstar.identify._lost_in_space import LisOptions, lost_in_space
-from shipstar.identify._sim import random_attitudes, simulate_frame
+from shipstar.identify._sim import random_attitudes, rotated_about_random_axis, simulate_frame
 from shipstar.identify._tracking import tracking
 from shipstar.units import DEG2RAD
 
 
-def _rotate(C, angle_deg, rng):
-    axis = rng.normal(size=3)
-    axis /= np.linalg.norm(axis)
-    a = math.radians(angle_deg) / 2
-    return C @ matrix_from_q_wxyz(np.concatenate([[math.cos(a)], math.sin(a) * axis]))
+_rotate = rotated_about_random_axis          # a prior angle_deg off the truth
 
 
 def _same(a, b):

@@ -10,14 +10,10 @@ import pytest
 from shipstar.errors import ShipstarError
 from shipstar.frames import matrix_from_q_wxyz
 from shipstar.identify import identify_tracking
-from shipstar.identify._sim import random_attitudes, simulate_frame
+from shipstar.identify._sim import random_attitudes, rotated_about_random_axis, simulate_frame
 
 
-def _rotate(C, angle_deg, rng):
-    axis = rng.normal(size=3)
-    axis /= np.linalg.norm(axis)
-    a = math.radians(angle_deg) / 2
-    return C @ matrix_from_q_wxyz(np.concatenate([[math.cos(a)], math.sin(a) * axis]))
+_rotate = rotated_about_random_axis          # a prior angle_deg off the truth
 
 
 def test_prior_within_its_error_gives_the_true_stars(db_a1, cam_a1):

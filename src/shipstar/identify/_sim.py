@@ -9,11 +9,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
 
-from shipstar.frames import C_icrs_from_sensor
+from shipstar.frames import C_icrs_from_sensor, matrix_from_q_wxyz
 
-__all__ = ["SimFrame", "random_attitudes", "simulate_frame"]
+__all__ = ["SimFrame", "random_attitudes", "rotated_about_random_axis", "simulate_frame"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -44,6 +46,15 @@ def random_attitudes(n: int, rng) -> np.ndarray:
     dec = np.arcsin(rng.uniform(-1.0, 1.0, n))
     roll = rng.uniform(0.0, 2.0 * np.pi, n)
     return C_icrs_from_sensor(ra, dec, roll)
+
+
+def rotated_about_random_axis(C, angle_deg: float, rng) -> np.ndarray:
+    """``C @ R``: ``R`` a rotation by ``angle_deg`` about a random axis (a prior that is
+    ``angle_deg`` off the truth ``C``, (3, 3))."""
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    a = math.radians(angle_deg) / 2
+    return C @ matrix_from_q_wxyz(np.concatenate([[math.cos(a)], math.sin(a) * axis]))
 
 
 def simulate_frame(db, camera, C, rng, *, sigma_px: float = 0.2, mag_sigma: float = 0.2,
