@@ -237,11 +237,26 @@ class MotionWindow:
         n = len(self._samples)
         limits = [float(limits_s)] * n if np.ndim(limits_s) == 0 else [float(x) for x in limits_s]
         use = range(n) if sources is None else sources
-        picked = [s for k in use for s in self._samples[k] if s[0] <= limits[k] + 1e-9]
-        if not picked:
+        # each source's samples are in time order: walk back from the newest (the window
+        # may hold more than the fit needs: the engine keeps its smoothing lag's worth)
+        newest = -math.inf
+        for k in use:
+            for smp in reversed(self._samples[k]):
+                if smp[0] <= limits[k] + 1e-9:
+                    newest = max(newest, smp[0])
+                    break
+        if newest == -math.inf:
             return None
-        newest = max(s[0] for s in picked)
-        picked = [s for s in picked if s[0] >= newest - self.window_s - 1e-9]
+        oldest = newest - self.window_s - 1e-9
+        picked = []
+        for k in use:
+            part = []
+            for smp in reversed(self._samples[k]):
+                if smp[0] < oldest:
+                    break
+                if smp[0] <= limits[k] + 1e-9:
+                    part.append(smp)
+            picked.extend(reversed(part))              # in time order, as added
         if len(picked) < MIN_MOTION_SAMPLES:
             return None
         return fit_motion([s[0] for s in picked], np.array([s[1] for s in picked]),
