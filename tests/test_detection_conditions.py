@@ -285,20 +285,3 @@ def test_the_noise_floor_follows_the_seeing(tmp_path):
     assert np.median(h.sigma_rad[h.inliers]) > 2.0 * np.median(h0.sigma_rad[h0.inliers])
 
 
-def test_noise_floor_estimate_on_known_residuals():
-    from shipstar.pipeline._conditions import NoiseFloor
-
-    rng = np.random.default_rng(2)
-    nf = NoiseFloor()
-    assert math.isnan(nf.estimate_px())
-    for _ in range(20):
-        cr = rng.uniform(0.01, 0.08, 50)                        # Cramer-Rao sigmas, px
-        sigma = np.hypot(cr, 0.05)                              # a 0.05 px floor (1.5'' on A1)
-        r2 = (rng.normal(0, sigma) ** 2 + rng.normal(0, sigma) ** 2) * (1.0 - 1.5 / 50)
-        nf.add(r2, cr ** 2)
-    assert nf.estimate_px() == pytest.approx(0.05, rel=0.1)
-    clean = NoiseFloor()
-    for _ in range(5):
-        cr = rng.uniform(0.01, 0.08, 50)
-        clean.add(rng.normal(0, cr) ** 2 + rng.normal(0, cr) ** 2, cr ** 2)
-    assert clean.estimate_px() < 0.02

@@ -1,17 +1,20 @@
 """Anisotropic centroid errors in the pipeline: the directions' information matrices
-(``pipeline._sensor.direction_info``) and the error shape from residuals
-(``pipeline._conditions.NoiseShape``).
+(``pipeline._sensor.direction_info``) and the noise model -- a shape on the extraction's
+covariance and a floor (seeing) -- from residuals (``pipeline._conditions.NoiseModel``,
+``residual_moments``).
 
-References: the pinhole camera's analytic derivative at the principal point, and
-residuals drawn with a known 2x2 covariance.
+References: the pinhole camera's analytic derivative at the principal point; Monte Carlo
+fits of stars with errors drawn from a known covariance.
 """
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from shipstar.camera import camera_preset
-from shipstar.pipeline._conditions import NoiseShape
+from shipstar.attitude import quest
+from shipstar.pipeline._conditions import NoiseModel, residual_moments
 from shipstar.pipeline._sensor import direction_info
 
 
@@ -19,7 +22,7 @@ def test_direction_info_at_the_principal_point_is_the_pinhole_derivative():
     cam = camera_preset("A1")
     s = cam.pixel_mm / cam.f_mm                  # rad per px at the centre
     cov = np.array([[[0.09, 0.03], [0.03, 0.04]]])
-    info, whiten = direction_info(cam, np.array([[cam.x0_px, cam.y0_px]]), cov)
+    info, whiten, _ = direction_info(cam, np.array([[cam.x0_px, cam.y0_px]]), cov)
     Si = np.linalg.inv(cov[0])
     # x (image right) turns the direction towards +Z, y (image down) towards -Y
     ref = np.zeros((3, 3))
@@ -33,32 +36,106 @@ def test_direction_info_at_the_principal_point_is_the_pinhole_derivative():
     assert np.isclose(z @ z, Si[0, 0], rtol=1e-6)
 
 
-def test_direction_info_with_a_shape_scales_the_covariance():
+def test_direction_info_with_a_shape_and_a_floor_is_that_covariance():
     cam = camera_preset("A2")
     xy = np.array([[100.0, 700.0], [900.0, 50.0]])
     cov = np.array([np.diag([0.04, 0.01]), [[0.02, -0.005], [-0.005, 0.03]]])
     S = np.array([[1.7, 0.2], [0.2, 0.8]])
-    info_s, _ = direction_info(cam, xy, cov, S)
+    info_s, whiten, G = direction_info(cam, xy, cov, S, floor_px=0.07)
     L = np.linalg.cholesky(cov)
-    info_ref, _ = direction_info(cam, xy, L @ S @ np.swapaxes(L, 1, 2))
+    info_ref, _, _ = direction_info(cam, xy, L @ S @ np.swapaxes(L, 1, 2) + 0.07 ** 2 * np.eye(2))
     assert np.allclose(info_s, info_ref, rtol=1e-9)
+    assert np.allclose(G, np.linalg.inv(np.swapaxes(L, 1, 2) @ L), rtol=1e-12)
 
 
-def test_noise_shape_recovers_the_error_covariance_of_whitened_residuals():
+def _field(rng, n, cam):
+    """``n`` stars over the image; Cramer-Rao sigmas from 0.01 px (bright) to 0.5 px."""
+    xy = rng.uniform(40.0, 980.0, (n, 2))
+    sig = np.exp(rng.uniform(np.log(0.01), np.log(0.5), (n, 2)))
+    rho = rng.uniform(-0.5, 0.5, n)
+    cov = np.stack([np.stack([sig[:, 0] ** 2, rho * sig[:, 0] * sig[:, 1]], 1),
+                    np.stack([rho * sig[:, 0] * sig[:, 1], sig[:, 1] ** 2], 1)], 1)
+    return xy, cov
+
+
+def _draw(rng, cam, xy, cov, S, f_px, floor_used_px):
+    """One fitted frame: whitened residuals of the QUEST fit with scalar weights, and their
+    expectations (``residual_moments``)."""
+    w = cam.unproject(xy)
+    _, W, G = direction_info(cam, xy, cov, None, w)
+    L = np.linalg.cholesky(cov)
+    true_cov = L @ S @ np.swapaxes(L, 1, 2) + f_px ** 2 * np.eye(2)
+    dxy = np.einsum("nij,nj->ni", np.linalg.cholesky(true_cov), rng.standard_normal((len(xy), 2)))
+    wm = cam.unproject(xy + dxy)
+    wts = 1.0 / (0.5 * np.trace(cov, axis1=1, axis2=2) + floor_used_px ** 2)
+    C0 = quest(wm, w, wts)                       # the true directions: identity attitude
+    z = np.einsum("nij,nj->ni", W, w @ C0 - wm)
+    return z, residual_moments(wm, wts, W, G)
+
+
+def test_residual_moments_are_the_fitted_residuals_second_moments():
+    """A field with one star far brighter than the rest (it carries the fit and shows little
+    of its error): Monte Carlo ``z z^T`` against the expectation, star by star."""
+    rng = np.random.default_rng(11)
+    cam = camera_preset("A1")
+    xy, cov = _field(rng, 7, cam)
+    cov[0] = np.diag([1e-4, 2e-4])
+    S, f = np.array([[0.8, 0.1], [0.1, 0.6]]), 0.05
+    theta = np.array([S[0, 0], S[0, 1], S[1, 1], f * f])
+    acc, trials = np.zeros((7, 3)), 3000
+    for _ in range(trials):
+        z, X = _draw(rng, cam, xy, cov, S, f, 0.0)
+        acc += np.stack([z[:, 0] ** 2, z[:, 0] * z[:, 1], z[:, 1] ** 2], 1)
+    pred = X @ theta
+    mc = acc / trials
+    # the bright star shows about half its error (the leverage): the prediction sees it
+    assert pred[0, 0] < 0.9 * (S[0, 0] + f * f * np.linalg.inv(np.linalg.cholesky(cov[0]).T
+                                                                 @ np.linalg.cholesky(cov[0]))[0, 0])
+    se = np.sqrt(2.0 / trials) * np.sqrt(pred[:, [0, 0, 2]] * pred[:, [0, 2, 2]])   # ~ std of each mean
+    assert np.all(np.abs(mc - pred) < 4.5 * se + 1e-3)
+
+
+def test_noise_model_recovers_shape_and_floor():
     rng = np.random.default_rng(5)
-    S_true = np.array([[1.69, 0.25], [0.25, 0.81]])
-    L = np.linalg.cholesky(S_true)
-    shape = NoiseShape(window_s=4.0, min_stars=30)
-    assert shape.matrix(0.0) is None
-    m = 30                                        # stars a frame
+    cam = camera_preset("A1")
+    S_true, f_true = np.array([[1.3, 0.15], [0.15, 0.8]]), 0.05          # 0.05 px: 1.5'' on A1
+    model = NoiseModel(window_s=4.0, min_stars=30)
+    assert model.estimate(0.0) is None
     for k in range(40):
-        z = rng.standard_normal((m, 2)) @ L.T * np.sqrt(1 - 1.5 / m)   # residuals: 3 of 2m dof fitted
-        shape.add(z, 0.1 * k)
-    S = shape.matrix(4.0)
-    # 1200 residuals: each element within ~4 standard errors
-    assert np.allclose(S, S_true, atol=0.15)
+        xy, cov = _field(rng, 12, cam)
+        z, X = _draw(rng, cam, xy, cov, S_true, f_true, 0.005)
+        model.add(z, X, 0.1 * k)
+    S, f2 = model.estimate(3.95)
+    assert np.allclose(S, S_true, atol=0.2)
+    assert np.sqrt(f2) == pytest.approx(f_true, rel=0.15)
     # a misidentified star far out is left out
-    shape.add(np.vstack([rng.standard_normal((m - 1, 2)) @ L.T, [[60.0, -40.0]]]), 4.0)
-    assert np.allclose(shape.matrix(4.05), S_true, atol=0.15)
-    # the window is in seconds: frames older than 4 s are forgotten
-    assert shape.matrix(100.0) is None
+    z, X = _draw(rng, cam, *_field(rng, 12, cam), S_true, f_true, 0.005)
+    z[0] = [60.0, -40.0]
+    model.add(z, X, 4.0)
+    S2, f2b = model.estimate(4.0)
+    assert np.allclose(S2, S_true, atol=0.2) and np.sqrt(f2b) == pytest.approx(f_true, rel=0.15)
+    # the window is in seconds: frames older than the model's reach are forgotten
+    assert model.estimate(100.0) is None
+
+
+def test_noise_model_without_a_floor_and_after_cloud():
+    rng = np.random.default_rng(8)
+    cam = camera_preset("A1")
+    clean = NoiseModel()
+    for k in range(20):
+        clean.add(*_draw(rng, cam, *_field(rng, 15, cam), np.eye(2), 0.0, 0.005), 0.1 * k)
+    S, f2 = clean.estimate(1.95)
+    assert np.allclose(S, np.eye(2), atol=0.2) and np.sqrt(f2) < 0.01
+    # seeing, then 2 s of cloud, then 3 frames of 4 stars: the 2 s window alone has 12
+    # stars (< 30); the model takes the newest frames before the cloud too, so the floor
+    # does not fall back to none
+    seeing = NoiseModel()
+    for k in range(20):
+        seeing.add(*_draw(rng, cam, *_field(rng, 15, cam), np.eye(2), 0.05, 0.005), 0.1 * k)
+    for k in range(3):
+        seeing.add(*_draw(rng, cam, *_field(rng, 4, cam), np.eye(2), 0.05, 0.05), 4.0 + 0.1 * k)
+    assert [f[0] for f in seeing._recent(4.25, seeing.window_s)] == pytest.approx([1.8, 1.9, 4.0, 4.1, 4.2])
+    S, f2 = seeing.estimate(4.25)
+    assert np.sqrt(f2) == pytest.approx(0.05, rel=0.4)
+    # beyond the model's reach (4 s) nothing is left
+    assert seeing.estimate(4.25 + 4.5) is None

@@ -58,7 +58,7 @@ def _rows(text):
 
 def test_chunks_and_workers_give_the_same_rows_as_one_pass(night, reference):
     """Two workers, or one chunk for the whole session, or the in-memory Python API: the
-    same rows, byte for byte (each chunk is processed after 4.6 s of warm-up frames)."""
+    same rows, byte for byte (each chunk is processed after 6.6 s of warm-up frames)."""
     from shipstar.calibrate.installation import load_installation
     from shipstar.camera import load_camera
     from shipstar.pipeline import SensorConfig, Track, WeatherTable, attitude_csv_text, process_session, scan_frames

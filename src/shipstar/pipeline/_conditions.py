@@ -13,15 +13,15 @@ One :class:`ConditionMonitor` per :class:`~shipstar.pipeline._sensor.SensorProce
   :data:`CLOUDED_REASON`, not a solver failure; a frame lost with a body's mask in the
   image gets :data:`MOON_REASON` (or :data:`SUN_REASON`).  Partly clouded frames are
   solved with the stars they have;
-- **seeing** (:class:`NoiseFloor`): the per-star noise floor added in quadrature to the
-  extraction's Cramer-Rao sigma is estimated from the attitude residuals of the last
-  :data:`FLOOR_FRAMES` solved frames (a median, robust to outliers and to a few
-  misidentified stars), never below ``PipelineOptions.centroid_floor_px``;
-- **the shape of the centroid errors** (:class:`NoiseShape`): a 2 x 2 factor, in image
-  axes, between the errors the residuals show and the extraction's covariances (with the
-  floor), from the same frames.  A star smeared by less than a streak (about 3 px: the
-  extraction fits it as a point) is less certain along its smear than its point
-  covariance says and more certain across; so are streaks whose model is imperfect.
+- **seeing and the shape of the centroid errors** (:class:`NoiseModel`): the centroid
+  covariances used are ``L S L^T + f^2 I``, ``L L^T`` the extraction's (Cramer-Rao)
+  covariance, ``S`` a 2 x 2 factor in image axes and ``f`` a floor (seeing), both estimated
+  from the attitude residuals of the last :data:`SHAPE_WINDOW_S` seconds of solved frames
+  against their exact expectations (:func:`residual_moments`); the floor never below
+  ``PipelineOptions.centroid_floor_px``.  A star smeared by less than a streak (about 3 px:
+  the extraction fits it as a point) is less certain along its smear than its point
+  covariance says and more certain across; so are streaks whose model is imperfect (``S``);
+  the brightest stars, which carry the attitude, are as uncertain as the seeing (``f``).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from collections import deque
 
 import numpy as np
 
-__all__ = ["ConditionMonitor", "NoiseFloor", "NoiseShape", "expected_stars", "CLOUDED_REASON", "MOON_REASON", "SUN_REASON",
+__all__ = ["ConditionMonitor", "NoiseModel", "residual_moments", "expected_stars", "CLOUDED_REASON", "MOON_REASON", "SUN_REASON",
            "CLOUDED_FRACTION", "ENVIRONMENT_REASONS"]
 
 #: Reason of a frame lost to cloud (too few stars for the pointing).
@@ -43,16 +43,19 @@ SUN_REASON = "sun in field"
 ENVIRONMENT_REASONS = (CLOUDED_REASON, MOON_REASON, SUN_REASON)
 #: A lost frame with fewer detections than this fraction of the expected stars is clouded.
 CLOUDED_FRACTION = 0.3
-#: Solved frames whose residuals estimate the noise floor.
-FLOOR_FRAMES = 20
-#: Fewest residuals (stars, pooled over those frames) for an estimate.
+#: Fewest residuals (stars, pooled over frames) for an estimate of the noise model.
 FLOOR_MIN_STARS = 30
-_LN2x2 = 2.0 * math.log(2.0)          # median of chi-square with 2 degrees of freedom
 #: Whitened residuals (in units of their predicted sigma) beyond this are not used by
-#: :class:`NoiseShape` (chi-square with 2 dof exceeds 4.5^2 with probability 4e-5).
+#: :class:`NoiseModel` (chi-square with 2 dof exceeds 4.5^2 with probability 4e-5).
 SHAPE_CLIP = 4.5
-#: Seconds of solved frames whose residuals give the noise shape (20 frames at 10 frames/s).
+#: Seconds of solved frames whose residuals give the noise model (20 frames at 10 frames/s).
 SHAPE_WINDOW_S = 2.0
+_FIRST_CLIP = 30.0
+#: The smallest eigenvalue of the shape factor ``S`` (the Cramer-Rao covariance 20x too large).
+_MIN_SHAPE = 0.05
+#: With fewer than ``FLOOR_MIN_STARS`` residuals in the window (after cloud), the noise model
+#: takes older frames too, newest first, up to this age (s).
+NOISE_MAX_AGE_S = 4.0
 
 
 def expected_stars(database, camera, C_icrs_from_sensor=None) -> float:
@@ -66,126 +69,198 @@ def expected_stars(database, camera, C_icrs_from_sensor=None) -> float:
     return float(np.count_nonzero(camera.in_image(camera.project(v))))
 
 
-def _weighted_median(r2, cr2, f2) -> float:
-    """The median of ``r2 / (cr2 + f2)`` with each star weighted by its information
-    ``1 / (cr2 + f2)``: the stars that carry the attitude decide the floor.  (An unweighted
-    median is decided by the many faint stars, whose Cramer-Rao sigma dwarfs a seeing of
-    0.05 px: measured, 0.77 and 1.28'' for a true 1.5'', 1.41 and 1.49'' weighted)."""
-    v = np.maximum(cr2 + f2, 1e-12)
-    ratio = r2 / v
-    order = np.argsort(ratio)
-    cw = np.cumsum(1.0 / v[order])
-    return float(ratio[order[np.searchsorted(cw, 0.5 * cw[-1])]])
+class NoiseModel:
+    """The centroid errors' covariance ``L S L^T + f^2 I`` from recent attitude residuals:
+    a 2 x 2 factor ``S`` (image axes) on the extraction's covariance ``L L^T`` and a floor
+    ``f`` (px, seeing) added after it, estimated together.
 
+    The two parts act on different stars: ``S`` on the faint ones, whose Cramer-Rao
+    covariance dwarfs the floor (a streak's model too cautious, or not cautious enough,
+    along its smear), ``f`` on the bright ones, which carry the attitude.  Each solved frame
+    adds its inlier stars' residuals whitened by the extraction's covariance alone,
+    ``z_i = L_i^-1 e_i``, with their expectation: for a fit with fixed weights the residual
+    is linear in every star's error, so ``E[z_i z_i^T]`` is linear in ``(S, f^2)``
+    (:func:`residual_moments`; exact to first order in the errors, whatever the fit's
+    weights: a star that carries the fit shows little of its error, and none of it is lost
+    to a leverage approximation).  Over the frames of the last :data:`SHAPE_WINDOW_S`
+    seconds ``(S, f^2)`` is a least-squares fit of ``z z^T`` to those expectations, each
+    star weighted by its expected scatter and the fit re-weighted three times; whitened residuals
+    beyond :data:`SHAPE_CLIP` under the model are left out (a misidentified or blended
+    star).  A floor that comes out negative is 0 (the Cramer-Rao covariances explain the
+    residuals).  When the window has fewer than ``min_stars`` residuals (after cloud) or
+    does not show the floor at one sigma (its stars all faint), older frames up to
+    :data:`NOISE_MAX_AGE_S` join it: a floor collapsing to 0 there would give the next
+    bright star the weight of a seeing-free one.
 
-class NoiseFloor:
-    """Per-star noise floor (px, 1 sigma per axis) from recent attitude residuals.
-
-    Each solved frame adds its inlier stars' squared residuals ``r2`` (px^2, the 2-D
-    residual, corrected for the fit's 3 degrees of freedom) and their Cramer-Rao
-    variances ``cr2``.  The floor ``f`` solves ``median(r2 / (cr2 + f^2)) = 2 ln 2`` (the
-    median of chi-square with 2 degrees of freedom; each star weighted by its information
-    ``1 / (cr2 + f^2)``, :func:`_weighted_median`); 0 when the Cramer-Rao sigmas alone
-    already explain the residuals.
+    Measured on a moonlit, clouded 160 s session (``realistic.toml``, seeing 1.5'' per
+    axis): the former estimates (a median floor, and ``S`` over the floor too, from an
+    average leverage) gave 1.16'' and ``S`` 0.78, so the brightest stars were given 0.45x
+    their error variance and A1's RMS(error/sigma) was 1.23 / 1.27 / 1.24; this model
+    gives a floor of 1.50'' (median; the truth's errors fitted to the same model: 1.51'',
+    ``S`` 0.77) and 1.07 / 1.09 / 1.07.
     """
 
-    def __init__(self, n_frames: int = FLOOR_FRAMES, min_stars: int = FLOOR_MIN_STARS):
-        self._frames: deque = deque(maxlen=int(n_frames))
-        self.min_stars = int(min_stars)
-        self._cache = None
-
-    def add(self, r2_px2, cr2_px2, leverage=None) -> None:
-        """Add a frame's squared residuals and Cramer-Rao variances (px^2); ``leverage``
-        (N,), optional: each star's share ``tr(H_ii)`` of the fit's 3 degrees of freedom
-        (its residual's variance is ``(cr2 + f^2) (2 - tr H_ii)`` of the 2 axes), else the
-        average share ``3 / n``."""
-        r2 = np.asarray(r2_px2, float)
-        cr2 = np.asarray(cr2_px2, float)
-        n = r2.size
-        ok = np.isfinite(r2) & np.isfinite(cr2) & (cr2 >= 0.0)
-        if n < 3 or not np.any(ok):
-            return
-        if leverage is None:
-            scale = np.full(n, 1.0 - 1.5 / n)
-        else:
-            scale = np.clip(1.0 - 0.5 * np.asarray(leverage, float), 0.05, 1.0)
-        self._frames.append((r2[ok] / scale[ok], cr2[ok]))
-        self._cache = None
-
-    @property
-    def n_stars(self) -> int:
-        return int(sum(len(r) for r, _ in self._frames))
-
-    def estimate_px(self) -> float:
-        """The floor (px), NaN with fewer than ``min_stars`` residuals."""
-        if self._cache is not None:
-            return self._cache
-        if self.n_stars < self.min_stars:
-            return math.nan
-        r2 = np.concatenate([r for r, _ in self._frames])
-        cr2 = np.concatenate([c for _, c in self._frames])
-        if _weighted_median(r2, cr2, 0.0) <= _LN2x2:
-            self._cache = 0.0
-            return 0.0
-        lo, hi = 0.0, float(np.max(r2))
-        for _ in range(40):
-            mid = 0.5 * (lo + hi)
-            if _weighted_median(r2, cr2, mid) > _LN2x2:
-                lo = mid
-            else:
-                hi = mid
-        self._cache = math.sqrt(0.5 * (lo + hi))
-        return self._cache
-
-
-class NoiseShape:
-    """2 x 2 factor ``S`` (image axes) between the centroid errors and their predicted
-    covariances, from recent attitude residuals.
-
-    Each solved frame adds its inlier stars' residuals whitened by the covariance they were
-    predicted with, ``z_i = L_i^-1 e_i`` (``L_i L_i^T`` = the extraction's covariance with
-    the floor, ``e_i`` the residual in px), scaled by ``1 / sqrt(1 - 1.5 / m)`` for the
-    fit's 3 degrees of freedom among ``2 m``.  ``S = mean(z z^T)`` over the frames of the
-    last :data:`SHAPE_WINDOW_S` seconds; the next frame's covariances are ``L_i S L_i^T``.
-    Whitened residuals beyond :data:`SHAPE_CLIP` (a misidentified or blended star) are left
-    out.  The window is in seconds, not frames, so that a chunk's warm-up
-    (``pipeline._measure.WARMUP_S``) covers it at any frame rate.
-    """
-
-    def __init__(self, window_s: float = None, min_stars: int = FLOOR_MIN_STARS):
+    def __init__(self, window_s: float = None, min_stars: int = FLOOR_MIN_STARS, max_age_s: float = None):
         self.window_s = SHAPE_WINDOW_S if window_s is None else float(window_s)
+        self.max_age_s = max(self.window_s, NOISE_MAX_AGE_S if max_age_s is None else float(max_age_s))
         self._frames: deque = deque()
         self.min_stars = int(min_stars)
         self._cache = None
 
     def _prune(self, t_s: float) -> None:
-        while self._frames and self._frames[0][0] < t_s - self.window_s:
+        while self._frames and self._frames[0][0] < t_s - self.max_age_s:
             self._frames.popleft()
             self._cache = None
 
-    def add(self, z, t_s: float) -> None:
-        """Add the whitened residuals ``z`` (M, 2) of the frame at ``t_s`` (s)."""
+    def _recent(self, t_s: float, age_s: float) -> list:
+        """The frames of the last ``age_s`` seconds; with fewer than ``min_stars``
+        residuals there, the newest older ones that reach ``min_stars``."""
+        frames = [f for f in self._frames if f[0] >= t_s - age_s]
+        n = sum(len(f[1]) for f in frames)
+        older = [f for f in self._frames if f[0] < t_s - age_s]
+        while n < self.min_stars and older:
+            f = older.pop()
+            frames.insert(0, f)
+            n += len(f[1])
+        return frames
+
+    def add(self, z, X, t_s: float) -> None:
+        """Add a frame's whitened residuals ``z`` (M, 2) and their expectations ``X``
+        (M, 3, 4): ``E[(z_x^2, z_x z_y, z_y^2)] = X @ (S_xx, S_xy, S_yy, f^2)``; at ``t_s`` (s)."""
         z = np.asarray(z, float).reshape(-1, 2)
-        m = len(z)
-        if m < 3:
+        X = np.asarray(X, float).reshape(-1, 3, 4)
+        ok = np.all(np.isfinite(z), axis=1) & np.all(np.isfinite(X), axis=(1, 2))
+        if np.count_nonzero(ok) < 3:
             return
-        z = z[np.all(np.isfinite(z), axis=1)]
-        z = z[np.hypot(z[:, 0], z[:, 1]) < SHAPE_CLIP] / math.sqrt(1.0 - 1.5 / m)
         self._prune(t_s)
-        self._frames.append((float(t_s), np.einsum("ni,nj->ij", z, z), len(z)))
+        self._frames.append((float(t_s), z[ok], X[ok]))
         self._cache = None
 
-    def matrix(self, t_s: float):
-        """``S`` (2, 2) for a frame at ``t_s`` (from the frames after ``t_s - window_s``),
-        or None with fewer than ``min_stars`` residuals there."""
+    def estimate(self, t_s: float):
+        """``(S (2, 2), f2_px2)`` for a frame at ``t_s`` from the frames after
+        ``t_s - window_s`` (and older ones, up to ``max_age_s``, when they have fewer than
+        ``min_stars`` residuals or do not show the floor at one sigma), or None with fewer
+        than ``min_stars`` residuals up to ``max_age_s``."""
         self._prune(t_s)
-        if self._cache is not None:
-            return self._cache
-        n = sum(k for _, _, k in self._frames)
-        if n < self.min_stars:
+        if self._cache is not None and self._cache[0] == t_s:
+            return self._cache[1]
+        est = self._fit(self._recent(t_s, self.window_s))
+        if (est is None or not est[1] > est[2]) and any(f[0] < t_s - self.window_s for f in self._frames):
+            est = self._fit(self._recent(t_s, self.max_age_s))
+        result = None if est is None else est[:2]
+        self._cache = (t_s, result)
+        return result
+
+    def _fit(self, frames):
+        """``(S, f2, sigma_f2)`` from ``frames``, or None."""
+        if sum(len(f[1]) for f in frames) < self.min_stars:
             return None
-        self._cache = sum(zz for _, zz, _ in self._frames) / n
-        return self._cache
+        z = np.concatenate([f[1] for f in frames])
+        X = np.concatenate([f[2] for f in frames])
+        zz = np.stack([z[:, 0] ** 2, z[:, 0] * z[:, 1], z[:, 1] ** 2], axis=1)
+        theta = np.array([1.0, 0.0, 1.0, 0.0])
+        # the first pass from no floor clips only the gross outliers (a bright star's
+        # residual may be many of its Cramer-Rao sigmas when the seeing is not yet known)
+        for clip in (_FIRST_CLIP, SHAPE_CLIP, SHAPE_CLIP, SHAPE_CLIP):
+            V = X @ theta                                        # (n, 3): E[z z^T] under theta
+            det = V[:, 0] * V[:, 2] - V[:, 1] ** 2
+            if np.any(~(det > 0.0)):
+                return None
+            chi2 = (z[:, 0] ** 2 * V[:, 2] - 2.0 * z[:, 0] * z[:, 1] * V[:, 1] + z[:, 1] ** 2 * V[:, 0]) / det
+            use = chi2 < clip ** 2
+            if np.count_nonzero(use) < self.min_stars:
+                return None
+            w = 4.0 / (V[use, 0] + V[use, 2]) ** 2               # 1 / (tr V / 2)^2
+            fit = _fit_shape_floor(zz[use], X[use], w)
+            if fit is None:
+                return None
+            theta, sigma_f2 = fit
+        S = np.array([[theta[0], theta[1]], [theta[1], theta[2]]])
+        return S, float(theta[3]), sigma_f2
+
+
+def _fit_shape_floor(zz, X, w):
+    """Weighted least squares of ``zz (n, 3) = X (n, 3, 4) @ theta`` (the off-diagonal
+    counted twice), ``theta = (S_xx, S_xy, S_yy, f^2)`` with ``f^2 >= 0``.  ``(theta,
+    sigma_f2)``: ``sigma_f2`` the unconstrained ``f^2``'s standard error (for Gaussian
+    errors the weights ``1 / (tr V / 2)^2`` are twice the inverse variance of ``z z^T``'s
+    diagonal, so the covariance is ``2 A^-1``); None when singular."""
+    D = np.array([1.0, 2.0, 1.0])
+    A = np.einsum("n,nki,k,nkj->ij", w, X, D, X)
+    b = np.einsum("n,nki,k,nk->i", w, X, D, zz)
+    try:
+        A_inv = np.linalg.inv(A)
+        theta = A_inv @ b
+        sigma_f2 = math.sqrt(max(2.0 * A_inv[3, 3], 0.0))
+        if not theta[3] > 0.0:                   # the Cramer-Rao covariances explain it all
+            theta = np.append(np.linalg.solve(A[:3, :3], b[:3]), 0.0)
+    except np.linalg.LinAlgError:
+        return None
+    if not np.all(np.isfinite(theta)):
+        return None
+    # an S that is not positive definite (a first pass weighted without the floor, few
+    # stars) has its eigenvalues raised to _MIN_SHAPE: the next pass re-weights from it
+    lam, vec = np.linalg.eigh(np.array([[theta[0], theta[1]], [theta[1], theta[2]]]))
+    if lam[0] < _MIN_SHAPE:
+        S = (vec * np.maximum(lam, _MIN_SHAPE)) @ vec.T
+        theta = np.array([S[0, 0], S[0, 1], S[1, 1], theta[3]])
+    return theta, sigma_f2
+
+
+#: ``E_k`` of the shape's three components (xx, xy, yy) and the row order of ``z z^T``.
+_BASIS = np.array([[[1.0, 0.0], [0.0, 0.0]], [[0.0, 1.0], [1.0, 0.0]], [[0.0, 0.0], [0.0, 1.0]]])
+
+
+def residual_moments(w_sensor, weights, whiten_per_rad, floor_gram_per_px2):
+    """The expectation of the whitened residuals' ``z z^T`` of a weighted fit, linear in the
+    noise model ``(S, f^2)`` (:class:`NoiseModel`).
+
+    A rotation fitted to ``w_sensor`` with scalar ``weights`` leaves the residuals
+    ``r_i = sum_j M_ij n_j``, ``M_ij = delta_ij P_i - w_j [u_i]x F^-1 [u_j]x^T``,
+    ``F = sum w_j P_j``, ``P = I - u u^T`` (first order in the errors ``n_j``).  With the
+    error covariance ``D_j (S + f^2 G_j) D_j^T`` (``D_j = J_j L_j``, the pseudo-inverse of the
+    whitening ``W_j = L_j^-1 J_j+``) the whitened residual ``z_i = W_i r_i`` has
+    ``E[z_i z_i^T] = sum_j A_ij (S + f^2 G_j) A_ij^T``, ``A_ij = W_i M_ij D_j``.
+
+    Parameters
+    ----------
+    w_sensor : ndarray, shape (N, 3)
+    weights : ndarray, shape (N,)
+    whiten_per_rad : ndarray, shape (N, 2, 3)
+    floor_gram_per_px2 : ndarray, shape (N, 2, 2)
+
+    Returns
+    -------
+    X : ndarray, shape (N, 3, 4)
+        Rows ``(z_x^2, z_x z_y, z_y^2)``, columns ``(S_xx, S_xy, S_yy, f^2)``; None when
+        the fit is singular.
+    """
+    u = np.asarray(w_sensor, float)
+    wts = np.asarray(weights, float)
+    W = np.asarray(whiten_per_rad, float)
+    G = np.asarray(floor_gram_per_px2, float)
+    n = len(u)
+    P = np.eye(3)[None] - u[:, :, None] * u[:, None, :]
+    try:
+        F_inv = np.linalg.inv(np.einsum("n,nij->ij", wts, P))
+    except np.linalg.LinAlgError:
+        return None
+    ux = np.zeros((n, 3, 3))
+    ux[:, 0, 1], ux[:, 0, 2], ux[:, 1, 2] = -u[:, 2], u[:, 1], -u[:, 0]
+    ux[:, 1, 0], ux[:, 2, 0], ux[:, 2, 1] = u[:, 2], -u[:, 1], u[:, 0]
+    Wx = np.einsum("iab,ibc->iac", W, ux)                      # W_i [u_i]x       (n, 2, 3)
+    Dm = np.swapaxes(W, 1, 2) @ np.linalg.inv(W @ np.swapaxes(W, 1, 2))    # pinv(W_j) (n, 3, 2)
+    xD = wts[:, None, None] * np.einsum("jba,jbc->jac", ux, Dm)  # w_j [u_j]x^T D_j (n, 3, 2)
+    A = -np.einsum("iab,bc,jcd->ijad", Wx, F_inv, xD)          # (n, n, 2, 2)
+    diag = np.einsum("iab,ibc->iac", W, Dm)                    # W_i P_i D_i (= I)
+    A[np.arange(n), np.arange(n)] += diag
+    X = np.empty((n, 3, 4))
+    for k in range(3):
+        V = np.einsum("ijab,bc,ijdc->iad", A, _BASIS[k], A)
+        X[:, :, k] = V[:, [0, 0, 1], [0, 1, 1]]
+    V = np.einsum("ijab,jbc,ijdc->iad", A, G, A)
+    X[:, :, 3] = V[:, [0, 0, 1], [0, 1, 1]]
+    return X
 
 
 class ConditionMonitor:
@@ -199,8 +274,8 @@ class ConditionMonitor:
         self.options = options
         self.bodies = BodyPredictor(camera)
         self.persistent = PersistentPixels()
-        self.noise_floor = NoiseFloor()
-        self.noise_shape = NoiseShape()
+        self.noise_model = NoiseModel()
+        self._floor_px = math.nan
         self.discs: tuple = ()
         #: The last frame: detections dropped per cause, and the positions kept.
         self.last: dict = {}
@@ -235,11 +310,22 @@ class ConditionMonitor:
                      "xy_rejected_px": ex.xy_px[~keep]}
         return keep
 
-    def floor_px(self) -> float:
-        """Noise floor for the next frame (px): the estimate, at least the options' floor."""
-        f = self.noise_floor.estimate_px()
+    def noise_at(self, t_s: float):
+        """``(S (2, 2) or None, floor_px)`` for a frame at ``t_s``: the noise model's
+        estimate (:class:`NoiseModel`), its floor at least the options' floor; before an
+        estimate, no shape and the options' floor."""
         base = self.options.centroid_floor_px
-        return base if not math.isfinite(f) else max(base, f)
+        est = self.noise_model.estimate(t_s) if math.isfinite(t_s) else None
+        if est is None:
+            self._floor_px = base
+            return None, base
+        S, f2 = est
+        self._floor_px = max(base, math.sqrt(f2))
+        return S, self._floor_px
+
+    def floor_px(self) -> float:
+        """The floor (px) of the last :meth:`noise_at` (the options' floor before one)."""
+        return self.options.centroid_floor_px if not math.isfinite(self._floor_px) else self._floor_px
 
     # -- after the frame -----------------------------------------------------------------
     def reason(self, reason: str, n_detected: int, database, prior) -> str:
@@ -251,46 +337,32 @@ class ConditionMonitor:
         return reason
 
     def add_solved(self, fr, floor_used_px: float, first=None, t_s: float = math.nan) -> None:
-        """Feed a solved frame's inlier residuals to the noise-floor and noise-shape estimates.
+        """Feed a solved frame's inlier residuals to the noise model (:class:`NoiseModel`).
 
         ``first`` (:class:`~shipstar.attitude.HorizontalAttitude`): the frame's first solve,
-        before the streak correction.  The shape's residuals are those of the QUEST solution
-        of its inliers with the scalar weights: a solution that the shape itself did not
-        weight, so that the shape depends on the last :data:`SHAPE_WINDOW_S` seconds only (a
-        chunk's warm-up rebuilds it, ``pipeline._measure.WARMUP_S``), not on every earlier one
-        through the weights it gave them."""
-        h, inputs = fr.horizontal, fr.solve_inputs
-        if inputs is None or inputs.weights is None or not fr.solved:
+        before the streak correction.  The residuals are those of the QUEST solution of its
+        inliers with the scalar weights: a solution that the model's shape did not weight, so
+        that the model depends on the last :data:`SHAPE_WINDOW_S` seconds (a chunk's warm-up
+        rebuilds it, ``pipeline._measure.WARMUP_S``) rather than on every earlier one through
+        the weights it gave them."""
+        inputs = fr.solve_inputs
+        if inputs is None or inputs.weights is None or not fr.solved or inputs.whiten_per_rad is None \
+                or first is None or not first.solved:
             return
-        cam = self.camera
-        keep = np.asarray(h.inliers)
-        u = h.w_sensor[keep] @ np.asarray(h.C_hor_from_sensor).T
-        r_px = np.linalg.norm(np.cross(u, h.v_hor[keep]), axis=1) / (cam.pixel_mm / cam.f_mm)
-        wts = np.asarray(inputs.weights, float)[keep]
-        cr2 = 1.0 / wts - floor_used_px ** 2
-        good = cr2 < 0.98                                  # unknown Cramer-Rao sigma (1 px): not used
-        # each star's leverage in the weighted fit, w_i tr(F^-1 (I - u_i u_i^T)),
-        # F = sum w (I - u u^T): with a low floor the brightest stars carry most of the
-        # fit and their residuals are shrunk far more than the average 3 / n, which would
-        # bias the floor low (and the lower floor weights them still more)
-        proj = np.eye(3)[None, :, :] - u[:, :, None] * u[:, None, :]
-        try:
-            F_inv = np.linalg.inv(np.einsum("n,nij->ij", wts, proj))
-            lev = wts * np.einsum("ij,nji->n", F_inv, proj)
-        except np.linalg.LinAlgError:
-            lev = None
-        self.noise_floor.add(r_px[good] ** 2, np.maximum(cr2[good], 0.0),
-                             None if lev is None else lev[good])
-        if inputs.whiten_per_rad is not None and first is not None and first.solved:
-            from shipstar.attitude import quest
+        from shipstar.attitude import quest
 
-            k1 = np.asarray(first.inliers)
-            w, v = first.w_sensor[k1], first.v_hor[k1]
-            C0 = quest(w, v, np.asarray(inputs.weights, float)[k1])
-            e = v @ C0 - w                                   # C^T v - w, sensor frame
-            good1 = 1.0 / np.asarray(inputs.weights, float)[k1] - floor_used_px ** 2 < 0.98
-            self.noise_shape.add(np.einsum("nij,nj->ni", inputs.whiten_per_rad[k1][good1], e[good1]), t_s)
-
+        k1 = np.asarray(first.inliers)
+        wts = np.asarray(inputs.weights, float)[k1]
+        good = 1.0 / wts - floor_used_px ** 2 < 0.98          # unknown Cramer-Rao sigma (1 px): not used
+        w, v = first.w_sensor[k1], first.v_hor[k1]
+        C0 = quest(w, v, wts)
+        e = v @ C0 - w                                       # C^T v - w, sensor frame
+        W = inputs.whiten_per_rad[k1]
+        X = residual_moments(w, wts, W, inputs.floor_gram_per_px2[k1])
+        if X is None:
+            return
+        z = np.einsum("nij,nj->ni", W, e)
+        self.noise_model.add(z[good], X[good], t_s)
 
     def _displacement_px(self, C_then, C_now, xy_px) -> np.ndarray:
         """How far (px) a star now at ``xy_px`` was from there with the attitude ``C_then``."""

@@ -42,9 +42,9 @@ __all__ = ["CHUNK_S", "WARMUP_S", "ENGINE_WARMUP_S", "MeasureJob", "MeasureOutco
 CHUNK_S = 60.0
 #: Frames processed before a chunk to rebuild a sensor's state (s): the engine's warm-up,
 #: plus the streak correction's motion window for those frames, plus a second for tracking,
-#: plus the noise shape's window (``_conditions.SHAPE_WINDOW_S``) that weights the attitudes
-#: the motion window holds.
-WARMUP_S = 4.6
+#: plus the noise model's reach (``_conditions.NOISE_MAX_AGE_S``: its window, 2 s, or after
+#: cloud up to 4 s) that weights the attitudes the motion window holds.
+WARMUP_S = 6.6
 #: The engine's state (pairing, the deck's motion window) rebuilt on resume from this many
 #: seconds of results before the resume point.
 ENGINE_WARMUP_S = 1.3

@@ -111,8 +111,10 @@ class _SolveInputs:
     #: the extraction's centroid covariances (a streak's is larger along the smear), or None
     info_per_rad2: np.ndarray | None = None
     #: (N, 2, 3) maps a direction residual (sensor frame, rad) to its centroid error in units
-    #: of the extraction's covariance with the floor, ``L^-1 J+`` (``_conditions.NoiseShape``)
+    #: of the extraction's covariance (without the floor), ``L^-1 J+`` (``_conditions.NoiseModel``)
     whiten_per_rad: np.ndarray | None = None
+    #: (N, 2, 2) ``L^-1 L^-T`` (px^-2): a floor's covariance ``f^2 I`` in those units is ``f^2 G``
+    floor_gram_per_px2: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -244,13 +246,14 @@ class FrameResult:
                            sigma_rad=h.sigma_rad[keep], info_per_rad2=info, model_covariance_rad2=model)
 
 
-def direction_info(camera, xy_px, cov_px2, shape=None, w_sensor=None):
+def direction_info(camera, xy_px, cov_px2, shape=None, w_sensor=None, floor_px: float = 0.0):
     """Information matrices of the directions ``camera.unproject(xy_px)`` whose centroids
-    have covariances ``cov_px2`` (N, 2, 2), times the error shape ``shape`` (2, 2).
+    have covariances ``cov_px2`` (N, 2, 2), times the error shape ``shape`` (2, 2), plus a
+    floor ``floor_px`` in quadrature.
 
     With ``J`` (3 x 2) the derivative of the unit direction by the pixel position and
-    ``L L^T = cov`` (Cholesky), the centroid's covariance is ``L S L^T`` and the
-    direction's information ``J+^T (L S L^T)^-1 J+``, ``J+ = (J^T J)^-1 J^T``.  ``J`` is
+    ``L L^T = cov`` (Cholesky), the centroid's covariance is ``L S L^T + f^2 I`` and the
+    direction's information ``J+^T (L S L^T + f^2 I)^-1 J+``, ``J+ = (J^T J)^-1 J^T``.  ``J`` is
     the pinhole's, ``(I - w w^T) [[0, 0], [0, -p], [p, 0]] w_x / f`` (x right turns the
     direction towards +Z, y down towards -Y): the distortion changes it by its gradient,
     under 1e-3 of it, and so the weights by as little.
@@ -263,13 +266,18 @@ def direction_info(camera, xy_px, cov_px2, shape=None, w_sensor=None):
     shape : ndarray, shape (2, 2), optional
     w_sensor : ndarray, shape (N, 3), optional
         ``camera.unproject(xy_px)`` when already known.
+    floor_px : float
+        1 sigma per axis, px.
 
     Returns
     -------
     info_per_rad2 : ndarray, shape (N, 3, 3)
         Sensor frame, rad^-2.
     whiten_per_rad : ndarray, shape (N, 2, 3)
-        ``L^-1 J+``: a direction residual in units of the centroid's ``cov`` (without ``shape``).
+        ``L^-1 J+``: a direction residual in units of the centroid's ``cov`` (without ``shape``
+        and floor).
+    floor_gram_per_px2 : ndarray, shape (N, 2, 2)
+        ``G = L^-1 L^-T``: the floor's covariance in those units is ``f^2 G``.
     """
     w = camera.unproject(xy_px) if w_sensor is None else np.asarray(w_sensor, float)
     k = camera.pixel_mm / camera.f_mm * w[:, 0]                      # rad per px along each axis
@@ -279,9 +287,12 @@ def direction_info(camera, xy_px, cov_px2, shape=None, w_sensor=None):
     Jp = np.linalg.solve(Jt @ J, Jt)                                  # (N, 2, 3)
     L = np.linalg.cholesky(np.asarray(cov_px2, float))
     whiten = np.linalg.solve(L, Jp)
-    Si = np.eye(2) if shape is None else np.linalg.inv(np.asarray(shape, float))
-    # (L S L^T)^-1 = L^-T S^-1 L^-1: info = whiten^T S^-1 whiten
-    return np.swapaxes(whiten, 1, 2) @ Si @ whiten, whiten
+    Li = np.linalg.inv(L)
+    G = Li @ np.swapaxes(Li, 1, 2)
+    S = np.eye(2) if shape is None else np.asarray(shape, float)
+    # (L S L^T + f^2 I)^-1 = L^-T (S + f^2 G)^-1 L^-1: info = whiten^T (S + f^2 G)^-1 whiten
+    Vi = np.linalg.inv(S[None] + float(floor_px) ** 2 * G)
+    return np.swapaxes(whiten, 1, 2) @ Vi @ whiten, whiten, G
 
 
 def _solve_hor(w_sensor, inputs: _SolveInputs, weather, options):
@@ -365,6 +376,7 @@ class SensorProcessor:
 
         self.conditions = ConditionMonitor(config.camera, options)
         self._floor_used_px = options.centroid_floor_px
+        self._shape = None
 
     @property
     def database(self):
@@ -375,8 +387,10 @@ class SensorProcessor:
     # -- steps ---------------------------------------------------------------------------
     def _measure(self, frame, t_s: float = math.nan, site=None):
         """``(xy_px (N, 2), sigma_px (N,) or None, cov_px2 (N, 2, 2) or None)``: centroids of
-        the frame, largest flux first, their sigmas and covariances with the noise floor
-        added (elongated objects included: at sea every star is a streak); the Moon and the
+        the frame, largest flux first, their sigmas with the noise floor added in quadrature
+        and the extraction's covariances (the floor and shape added by :meth:`_horizontal`,
+        ``self._floor_used_px``, ``self._shape``; elongated objects included: at sea every
+        star is a streak); the Moon and the
         Sun masked, trails and persistent pixels dropped (``self.conditions``)."""
         from shipstar._fitsio import read_fits_image
         from shipstar.extract import extract_stars
@@ -403,14 +417,15 @@ class SensorProcessor:
         sig = ex.xy_sigma_px[order]
         known = np.isfinite(sig)
         sig = np.where(known, sig, 1.0)
-        self._floor_used_px = f = self.conditions.floor_px()
+        self._shape, f = self.conditions.noise_at(t_s)
+        self._floor_used_px = f
         cov = np.where(known[:, None, None], ex.xy_cov_px2[order], np.eye(2))
         # a covariance that is not positive definite (or not finite) is replaced by the star's
         # scalar sigma, isotropic: the anisotropic weights never stop a frame from solving
         a, b, c = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
         with np.errstate(invalid="ignore"):
             pd = np.isfinite(a) & np.isfinite(b) & np.isfinite(c) & (a > 0) & (c > 0) & (a * c - b * b > 0)
-        cov = np.where(pd[:, None, None], cov, sig[:, None, None] ** 2 * np.eye(2)) + f * f * np.eye(2)
+        cov = np.where(pd[:, None, None], cov, sig[:, None, None] ** 2 * np.eye(2))
         return ex.xy_px[order], np.hypot(sig, f), cov
 
     def _prior(self, t_s: float):
@@ -465,10 +480,10 @@ class SensorProcessor:
         scale = cam.pixel_mm / cam.f_mm
         sigma = None if opt.centroid_sigma_px is None else opt.centroid_sigma_px * scale
         weights = None if (sigma is not None or sigma_px is None) else sigma_px[rows] ** -2.0
-        info = whiten = None
+        info = whiten = gram = None
         if weights is not None and cov_px2 is not None:
-            info, whiten = direction_info(cam, xy[rows], cov_px2[rows], shape, w)
-        inputs = _SolveInputs(v_true, sigma, weights, info, whiten)
+            info, whiten, gram = direction_info(cam, xy[rows], cov_px2[rows], shape, w, self._floor_used_px)
+        inputs = _SolveInputs(v_true, sigma, weights, info, whiten, gram)
         return _solve_hor(w, inputs, weather, opt), site, weather, int(rows.size), inputs
 
     def _ship(self, h):
@@ -512,7 +527,7 @@ class SensorProcessor:
             xy, sigma_px, cov_px2 = self._measure(frame, t_s, site)
             n_det, measured = len(xy), True
             hip, mode, C_icrs, u_sensor = self._identify(frame, xy, t_s)
-            shape = self.conditions.noise_shape.matrix(t_s) if math.isfinite(t_s) else None
+            shape = self._shape
             h, site, weather, n_id, inputs = self._horizontal(frame, xy, sigma_px, hip, u_sensor, site, weather,
                                                               cov_px2, shape)
         except ShipstarError as exc:
