@@ -1,5 +1,6 @@
-"""The one-call compiled paths (pixel centroids of a camera without distortion) and the
-scatter screen (a detection far outside the frame's own centroid scatter is not named)."""
+"""The one-call compiled paths (pixel centroids of a camera without distortion), the
+scatter screen (a detection far outside the frame's own centroid scatter is not named) and
+the ambiguity rule for the detections beyond the used ones."""
 
 from __future__ import annotations
 
@@ -101,6 +102,42 @@ def test_a_false_star_on_a_missing_star_beyond_the_frames_scatter_is_not_named(d
                           fallback=False)
     assert r.solved and r.star_index[row] == f.truth_row[row]
     assert np.all(r.star_index == f.truth_row)
+
+
+def test_a_false_star_in_the_gate_of_a_star_detected_beyond_the_used_ones_is_not_named(db12, cam12):
+    # bench_identify's seed004 stream, frame 1325: the tracker fits the 60 brightest
+    # detections; a false one ranked 2nd fell 1.24 px from the place of a catalog star
+    # whose own detection ranked 63rd.  In a frame of 0.24 px scatter that is 5 sigma,
+    # inside the fine gate (1.5 px) and the scatter screen (11.7 x the upper-quartile
+    # residual): it was named as that star.  The star's own (fainter) detection is
+    # nearer to its place: the false one is not named; nor by lost-in-space.
+    rng = np.random.default_rng(74)
+    for C in random_attitudes(200, rng):
+        f = simulate_frame(db12, cam12, C, rng, sigma_px=0.3)
+        if f.truth_row.size >= 63:
+            break
+    star = f.truth_row.size - 1                            # the faintest, beyond the 60 used
+    xy_star = cam12.project((db12.u_icrs[f.truth_row[star]] @ C)[None])[0]
+    direction = rng.normal(size=2)
+    false_xy = xy_star + 1.24 * direction / np.linalg.norm(direction)
+    xy = np.insert(f.xy_px, 1, false_xy, axis=0)           # ranked 2nd
+    truth = np.insert(f.truth_row, 1, -1)
+    prior = _rotate(C, 0.1, rng)
+    fast = identify_tracking(xy, db12, prior, camera=cam12, prior_error_deg=0.2, fallback=False)
+    ref = tracking(field_from_camera(xy, cam12, error_px=1.0), db12, prior, prior_error_rad=0.2 * DEG2RAD)
+    _same(fast, ref)
+    assert fast.solved
+    assert fast.star_index[1] == -1                        # not named
+    m = fast.star_index >= 0
+    assert np.all(fast.star_index[m] == truth[m]) and fast.n_matched >= 60 - 3
+    lis = identify_lost_in_space(xy, db12, camera=cam12)
+    assert lis.solved and lis.star_index[1] == -1
+    m = lis.star_index >= 0
+    assert np.all(lis.star_index[m] == truth[m]) and lis.n_matched >= 60 - 3
+    # without the false detection the frame's stars are all named (the faint ones beyond
+    # the used 60 are not matched: the tracker does not pair them)
+    r = identify_tracking(f.xy_px, db12, prior, camera=cam12, prior_error_deg=0.2, fallback=False)
+    assert r.solved and np.all(r.star_index[:60] == f.truth_row[:60])
 
 
 def test_the_compiled_look_up_refuses_a_database_not_sorted_by_key(db12):

@@ -256,6 +256,43 @@ static long scatter_screen(long *img, long *cat, double *d2, long k, double gate
     return out;
 }
 
+/* Pairs (img, j, d2) kept in place whose detection (row img of t) is the nearest to the
+ * prediction by C of the catalog star (row j of u (., 3)) also among the detections
+ * beyond the used ones (t_more: the fainter rows the fit does not see); returns their
+ * number.  The true tangent plane of t and t_more is t s (1 + k1 |t|^2) (tracking: s 1,
+ * k1 0, t already at its focal scale).  The used detection of a pair that loses is not
+ * the star: the star's own detection ranked beyond the used ones and a false one among
+ * them fell inside its fine gate (bench_identify's seed004 stream, frame 1325: a false
+ * star ranked 2nd, 1.24 px from the place of a catalog star detected 63rd; 5 sigma of
+ * the frame's 0.24 px scatter per axis, 11.7 times the pairs' upper-quartile squared
+ * residual, inside the fine gate and the scatter screen: it was named).
+ * Nearer, not merely inside the gate: a faint neighbour of a true star (an uncatalogued
+ * star, noise) must not cost the star its name. */
+static long unused_nearer(const double *t, const double *t_more, long n_more, double s, double k1,
+                          const double *u, long *img, long *j, double *d2, long k, const double *C)
+{
+    if (n_more <= 0) return k;
+    long out = 0;
+    for (long i = 0; i < k; i++) {
+        const double *v = u + 3 * j[i];
+        double w0 = v[0] * C[0] + v[1] * C[3] + v[2] * C[6];
+        double ty = (v[0] * C[1] + v[1] * C[4] + v[2] * C[7]) / w0;
+        double tz = (v[0] * C[2] + v[1] * C[5] + v[2] * C[8]) / w0;
+        double a = t[2 * img[i]], b = t[2 * img[i] + 1], f = s;
+        if (k1 != 0.0) f = s * (1.0 + k1 * (a * a + b * b));
+        double ey = a * f - ty, ez = b * f - tz, own = ey * ey + ez * ez;
+        int nearer = 0;
+        for (long r = 0; r < n_more && !nearer; r++) {
+            a = t_more[2 * r]; b = t_more[2 * r + 1]; f = s;
+            if (k1 != 0.0) f = s * (1.0 + k1 * (a * a + b * b));
+            double dy = a * f - ty, dz = b * f - tz;
+            nearer = dy * dy + dz * dz < own;
+        }
+        if (!nearer) { img[out] = img[i]; j[out] = j[i]; d2[out] = d2[i]; out++; }
+    }
+    return out;
+}
+
 /* ---------------------------------------------------------------------------------
  * Sky grid and prediction
  * ------------------------------------------------------------------------------- */
@@ -541,6 +578,8 @@ typedef struct {
     long n;
     const double *t;            /* (n, 2) nominal tangent plane */
     const double *u0;           /* (n, 3) unit vectors at scale 1 */
+    const double *t_more;       /* (n_more, 2): the detections beyond the n usable ones */
+    long n_more;
     /* parameters */
     double e_edge, max_edge, min_edge, model_tol, ftol, error_rad, half_diag, gate_fine,
         area0, p_false_max, max_time_s, t_start;
@@ -668,6 +707,21 @@ static double lis_p_false(const Lis *L, const long *img, const double *d2, long 
 }
 
 /* _Search.verify: 1 accepted (result in L), 0 rejected, -1 out of memory */
+/* L->d2b [0, m): the squared residuals of the pairs (L->img, L->cat) by C, s, k1 */
+static void lis_residuals2(Lis *L, const Db *db, const double *C, double s, double k1, long m)
+{
+    for (long i = 0; i < m; i++) {
+        const double *v = db->u64 + 3 * L->cat[i];
+        double w0 = v[0] * C[0] + v[1] * C[3] + v[2] * C[6];
+        double w1 = v[0] * C[1] + v[1] * C[4] + v[2] * C[7];
+        double w2 = v[0] * C[2] + v[1] * C[5] + v[2] * C[8];
+        double a = L->t[2 * L->img[i]], b = L->t[2 * L->img[i] + 1], f = s;
+        if (k1 != 0.0) f = s * (1.0 + k1 * (a * a + b * b));
+        double dy = a * f - w1 / w0, dz = b * f - w2 / w0;
+        L->d2b[i] = dy * dy + dz * dz;
+    }
+}
+
 static int lis_verify(Lis *L, const Db *db, const long *img4, const long *cat4, double scale)
 {
     double s = L->fit ? scale : 1.0, k1 = 0.0, C[9], box[4];
@@ -745,16 +799,14 @@ static int lis_verify(Lis *L, const Db *db, const long *img4, const long *cat4, 
     if (m3 < m) {                                           /* refit without the outliers */
         m = m3;
         refine(L, db, L->img, L->cat, m, &s, &k1, L->fit, radial, C);
-        for (long i = 0; i < m; i++) {
-            const double *v = db->u64 + 3 * L->cat[i];
-            double w0 = v[0] * C[0] + v[1] * C[3] + v[2] * C[6];
-            double w1 = v[0] * C[1] + v[1] * C[4] + v[2] * C[7];
-            double w2 = v[0] * C[2] + v[1] * C[5] + v[2] * C[8];
-            double a = L->t[2 * L->img[i]], b = L->t[2 * L->img[i] + 1], f = s;
-            if (k1 != 0.0) f = s * (1.0 + k1 * (a * a + b * b));
-            double dy = a * f - w1 / w0, dz = b * f - w2 / w0;
-            L->d2b[i] = dy * dy + dz * dz;
-        }
+        lis_residuals2(L, db, C, s, k1, m);
+    }
+    m3 = unused_nearer(L->t, L->t_more, L->n_more, s, k1, db->u64, L->img, L->cat, L->d2b, m, C);
+    if (m3 < m) {                                           /* refit without them */
+        if (m3 < L->min_matches) return 0;
+        m = m3;
+        refine(L, db, L->img, L->cat, m, &s, &k1, L->fit, radial, C);
+        lis_residuals2(L, db, C, s, k1, m);
     }
     double p = lis_p_false(L, L->img, L->d2b, m, img4, L->pred.n_in, s);
     if (p > L->p_false_max) return 0;
@@ -997,17 +1049,19 @@ static void release_all(Py_buffer *b, int n)
         if (b[i].obj) PyBuffer_Release(&b[i]);
 }
 
-/* The search over the usable stars t (n, 2), u0 (n, 3) with the parameters of
- * lis_solve; 1 solved (L->C, L->img / L->cat [0, L->n_match), ...), 0 / 2 not, -1 no
- * memory.  L is zeroed here and must be released with lis_free. */
+/* The search over the usable stars t (n, 2), u0 (n, 3) (t_more (n_more, 2) the fainter
+ * ones beyond them) with the parameters of lis_solve; 1 solved (L->C, L->img / L->cat
+ * [0, L->n_match), ...), 0 / 2 not, -1 no memory.  L is zeroed here and must be released with lis_free. */
 static int lis_core(Lis *L, const Db *db, const double *t, const double *u0, long n,
-                    const int64_t *I, const double *D, const int64_t *combos, const int64_t *ends,
-                    long n_ends)
+                    const double *t_more, long n_more, const int64_t *I, const double *D,
+                    const int64_t *combos, const int64_t *ends, long n_ends)
 {
     memset(L, 0, sizeof *L);
     L->t = t;
     L->u0 = u0;
     L->n = n;
+    L->t_more = t_more;
+    L->n_more = n_more;
     long k = (long)I[0];
     L->db_n_patterns = db->n_patterns_db;
     L->min_matches = (long)I[6]; L->max_candidates = (long)I[7]; L->fit = (int)I[8];
@@ -1074,8 +1128,10 @@ static PyObject *lis_result(int status, Lis *L, Py_buffer *oc, const Py_buffer *
                          L->p_false, L->rms);
 }
 
-/* lis_solve(t, u0, combos, ends, u64, u32, pstars, key_lo, key_hi_start, cell_start,
+/* lis_solve(t, u0, t_more, combos, ends, u64, u32, pstars, key_lo, key_hi_start, cell_start,
  *           cell_index, cell_u, iparams, dparams, out_C, usable, hip_db, out_star, out_hip)
+ * t_more (n_more, 2): the usable detections beyond the n searched (fainter; only a nearer
+ * one of them unnames a pair, unused_nearer)
  * iparams (int64): k, grid_n, key_bits, lo_bits, bins, db_n_patterns, min_matches,
  *                  max_candidates, fit, fit_radial
  * dparams (float64): e_edge, max_edge, min_edge, model_tol, ftol, error_rad, half_diag,
@@ -1083,9 +1139,9 @@ static PyObject *lis_result(int status, Lis *L, Py_buffer *oc, const Py_buffer *
  * returns (status, n_match, n_verified, n_patterns, s, k1, p_false, rms_arcsec) */
 static PyObject *py_lis_solve(PyObject *self, PyObject *args)
 {
-    Py_buffer bt, bu0, bco, ben, b[NBUF], ip, dp, oc, bus, bh, ostar, ohip;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*y*y*y*y*y*w*y*y*w*w*", &bt, &bu0, &bco, &ben,
-                          &b[0], &b[1], &b[2], &b[3], &b[4], &b[5], &b[6], &b[7], &ip, &dp,
+    Py_buffer bt, bu0, bmore, bco, ben, b[NBUF], ip, dp, oc, bus, bh, ostar, ohip;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*w*y*y*w*w*", &bt, &bu0, &bmore, &bco,
+                          &ben, &b[0], &b[1], &b[2], &b[3], &b[4], &b[5], &b[6], &b[7], &ip, &dp,
                           &oc, &bus, &bh, &ostar, &ohip))
         return NULL;
     const int64_t *I = ip.buf;
@@ -1094,14 +1150,15 @@ static PyObject *py_lis_solve(PyObject *self, PyObject *args)
     Lis L;
     int status;
     Py_BEGIN_ALLOW_THREADS
-    status = lis_core(&L, &db, bt.buf, bu0.buf, (long)(bt.len / (2 * sizeof(double))), I, dp.buf,
-                      bco.buf, ben.buf, (long)(ben.len / sizeof(int64_t)));
+    status = lis_core(&L, &db, bt.buf, bu0.buf, (long)(bt.len / (2 * sizeof(double))), bmore.buf,
+                      (long)(bmore.len / (2 * sizeof(double))), I, dp.buf, bco.buf, ben.buf,
+                      (long)(ben.len / sizeof(int64_t)));
     Py_END_ALLOW_THREADS
     PyObject *res = lis_result(status, &L, &oc, &bus, &bh, &ostar, &ohip);
     lis_free(&L);
     release_all(b, NBUF);
-    PyBuffer_Release(&bt); PyBuffer_Release(&bu0); PyBuffer_Release(&bco); PyBuffer_Release(&ben);
-    PyBuffer_Release(&ip); PyBuffer_Release(&dp); PyBuffer_Release(&oc);
+    PyBuffer_Release(&bt); PyBuffer_Release(&bu0); PyBuffer_Release(&bmore); PyBuffer_Release(&bco);
+    PyBuffer_Release(&ben); PyBuffer_Release(&ip); PyBuffer_Release(&dp); PyBuffer_Release(&oc);
     PyBuffer_Release(&bus); PyBuffer_Release(&bh); PyBuffer_Release(&ostar); PyBuffer_Release(&ohip);
     return res;
 }
@@ -1160,7 +1217,7 @@ static PyObject *py_lis_pinhole(PyObject *self, PyObject *args)
         Py_BEGIN_ALLOW_THREADS
         finite = unproject_rows(bx.buf, n, bcam.buf, ou.buf, t);
         if (finite) {
-            status = lis_core(&L, &db, t, ou.buf, m, I, dp.buf, bco.buf, ben.buf,
+            status = lis_core(&L, &db, t, ou.buf, m, t + 2 * m, n - m, I, dp.buf, bco.buf, ben.buf,
                               (long)(ben.len / sizeof(int64_t)));
             if (status == 1 && !(L.s == 1.0 && L.k1 == 0.0)) unit_rows_of(t, n, L.s, L.k1, ou.buf);
         }
@@ -1198,6 +1255,8 @@ typedef struct {
     const double *t;            /* (n, 2) at the focal scale */
     const double *w;            /* (n, 3) unit vectors */
     const double *my, *mz;      /* (n,) split t */
+    const double *t_more;       /* (n_more, 2): the detections beyond the n used ones */
+    long n_more;
     long m;                     /* predicted stars */
     const long *rows;
     const double *u;            /* (m, 3) packed catalog vectors */
@@ -1354,6 +1413,16 @@ static int scene_match(Scene *S, const double *C_prior, double shy, double shz, 
     if (k2 < k) {                                           /* refit without the outliers */
         k = k2;
         *k_out = k;
+        double Cn[9];
+        memcpy(Cn, C, sizeof Cn);
+        fit(S, img, j, k, Cn, C);
+        residuals2(S, img, j, k, C, d2);
+    }
+    k2 = unused_nearer(S->t, S->t_more, S->n_more, 1.0, 0.0, S->u, img, j, d2, k, C);
+    if (k2 < k) {                                           /* refit without them */
+        k = k2;
+        *k_out = k;
+        if (k < S->min_matches) return 4;
         double Cn[9];
         memcpy(Cn, C, sizeof Cn);
         fit(S, img, j, k, Cn, C);
@@ -1530,7 +1599,8 @@ static int track_run(Scene *S, const double *C_prior, const double *box, long *i
  * min_matches, n_trials) and dparams (box[4], gate, gate_prior, gate_shift, area, limit):
  * 0 (out filled; solved when out->code == 0, then img / cat [0, out->k) and *rms), -1 no
  * memory.  img, cat: n longs. */
-static int track_core(const double *t, const double *w, long n_stars, const double *C_prior,
+static int track_core(const double *t, const double *w, long n_stars, const double *t_more,
+                      long n_more, const double *C_prior,
                       const double *cell_u, const int32_t *cell_start, const uint32_t *cell_index,
                       const int64_t *I, const double *D, TrackOut *out, long *img, long *cat,
                       double *rms_out)
@@ -1541,6 +1611,8 @@ static int track_core(const double *t, const double *w, long n_stars, const doub
     S.n = n_stars;
     S.t = t;
     S.w = w;
+    S.t_more = t_more;
+    S.n_more = n_more;
     S.min_matches = (long)I[1];
     S.n_trials = (long)I[2];
     double box[4] = {D[0], D[1], D[2], D[3]};
@@ -1630,18 +1702,21 @@ static PyObject *track_result(int rc, const TrackOut *out, const long *img, cons
                          rms, 0.0);
 }
 
-/* track_solve(t, w, C_prior, cell_u, cell_start, cell_index, iparams, dparams, out_C,
- *             usable, hip_db, out_star, out_hip)
+/* track_solve(t, w, t_more, C_prior, cell_u, cell_start, cell_index, iparams, dparams,
+ *             out_C, usable, hip_db, out_star, out_hip): t_more (n_more, 2) the usable
+ *             detections beyond the n used (fainter; only a nearer one of them unnames
+ *             a pair, unused_nearer)
  * iparams (int64): grid_n, min_matches, n_trials
  * dparams (float64): box[4] (cy, cz, hy, hz), gate, gate_prior, gate_shift, area, limit
  * returns (code, count, p, voted, n_match, p_false, rms_arcsec, 0.0) */
 static PyObject *py_track_solve(PyObject *self, PyObject *args)
 {
-    Py_buffer bt, bw, bc, bu, bcs, bci, ip, dp, oc, bus, bh, ostar, ohip;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*w*y*y*w*w*", &bt, &bw, &bc, &bu, &bcs, &bci, &ip,
-                          &dp, &oc, &bus, &bh, &ostar, &ohip))
+    Py_buffer bt, bw, bmore, bc, bu, bcs, bci, ip, dp, oc, bus, bh, ostar, ohip;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*w*y*y*w*w*", &bt, &bw, &bmore, &bc, &bu, &bcs, &bci,
+                          &ip, &dp, &oc, &bus, &bh, &ostar, &ohip))
         return NULL;
     long n = (long)(bt.len / (2 * sizeof(double)));
+    long n_more = (long)(bmore.len / (2 * sizeof(double)));
     long *img = malloc((n > 0 ? n : 1) * sizeof(long)), *cat = malloc((n > 0 ? n : 1) * sizeof(long));
     TrackOut out;
     memset(&out, 0, sizeof out);
@@ -1649,16 +1724,16 @@ static PyObject *py_track_solve(PyObject *self, PyObject *args)
     double rms = NAN;
     if (img && cat) {
         Py_BEGIN_ALLOW_THREADS
-        rc = track_core(bt.buf, bw.buf, n, bc.buf, bu.buf, bcs.buf, bci.buf, ip.buf, dp.buf, &out, img,
-                        cat, &rms);
+        rc = track_core(bt.buf, bw.buf, n, bmore.buf, n_more, bc.buf, bu.buf, bcs.buf, bci.buf, ip.buf,
+                        dp.buf, &out, img, cat, &rms);
         Py_END_ALLOW_THREADS
     }
     PyObject *res = track_result(rc, &out, img, cat, rms, &oc, &bus, &bh, &ostar, &ohip);
     free(img); free(cat);
-    PyBuffer_Release(&bt); PyBuffer_Release(&bw); PyBuffer_Release(&bc); PyBuffer_Release(&bu);
-    PyBuffer_Release(&bcs); PyBuffer_Release(&bci); PyBuffer_Release(&ip); PyBuffer_Release(&dp);
-    PyBuffer_Release(&oc); PyBuffer_Release(&bus); PyBuffer_Release(&bh); PyBuffer_Release(&ostar);
-    PyBuffer_Release(&ohip);
+    PyBuffer_Release(&bt); PyBuffer_Release(&bw); PyBuffer_Release(&bmore); PyBuffer_Release(&bc);
+    PyBuffer_Release(&bu); PyBuffer_Release(&bcs); PyBuffer_Release(&bci); PyBuffer_Release(&ip);
+    PyBuffer_Release(&dp); PyBuffer_Release(&oc); PyBuffer_Release(&bus); PyBuffer_Release(&bh);
+    PyBuffer_Release(&ostar); PyBuffer_Release(&ohip);
     return res;
 }
 
@@ -1666,7 +1741,8 @@ static PyObject *py_track_solve(PyObject *self, PyObject *args)
  *               out_u, hip_db, out_star, out_hip): track_solve from pixel centroids of a
  * camera without distortion, cam = (x0_px, y0_px, pixel_mm, f_mm), at focal scale 1, in
  * one call: out_u (N, 3) gets the stars' unit vectors; the brightest iparams[3] rows are
- * used.  None when a centroid is not finite (the caller takes the general path). */
+ * used (the others as t_more).  None when a centroid is not finite (the caller takes the
+ * general path). */
 static PyObject *py_track_pinhole(PyObject *self, PyObject *args)
 {
     Py_buffer bx, bcam, bc, bu, bcs, bci, ip, dp, oc, ou, bh, ostar, ohip;
@@ -1686,8 +1762,8 @@ static PyObject *py_track_pinhole(PyObject *self, PyObject *args)
         Py_BEGIN_ALLOW_THREADS
         finite = unproject_rows(bx.buf, n, bcam.buf, ou.buf, t);
         if (finite)
-            rc = track_core(t, ou.buf, m, bc.buf, bu.buf, bcs.buf, bci.buf, I, dp.buf, &out, img, cat,
-                            &rms);
+            rc = track_core(t, ou.buf, m, t + 2 * m, n - m, bc.buf, bu.buf, bcs.buf, bci.buf, I, dp.buf,
+                            &out, img, cat, &rms);
         Py_END_ALLOW_THREADS
     }
     PyObject *res;

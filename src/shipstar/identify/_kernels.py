@@ -19,6 +19,7 @@ __all__ = ["db_buffers", "lis_solve", "lis_pinhole", "track_solve", "track_pinho
            "pinhole_unproject", "unit_rows"]
 
 _NO_ROWS = np.empty(0, dtype=np.int64)
+_NO_MORE = np.empty((0, 2))
 #: native float64 (the compiled entries read raw buffers; "y*" / "w*" refuse non-C-ordered ones)
 _F64 = np.dtype(np.float64)
 #: star-row dtypes of pattern_stars the compiled look-up reads as they are
@@ -140,13 +141,15 @@ def lis_params(b: "_DbBuffers", k: int, m: int, params):
     return ip, dp
 
 
-def lis_solve(t, u0, k: int, combos, ends, db, params, *, n_field: int, usable):
+def lis_solve(t, u0, k: int, combos, ends, db, params, *, n_field: int, usable, t_more=None):
     """The lost-in-space search over the usable stars ``t (n, 2)``, ``u0 (n, 3)``.
 
     ``combos (C, 4)`` are the 4-star patterns of the brightest ``k`` stars in search
     order and ``ends`` the end rows of their batches; ``usable`` the input rows of the
     ``n`` stars (None: rows ``0 .. n - 1``) of the ``n_field`` input stars; ``params``
-    the gates and limits (:func:`lis_params`, from :func:`._lost_in_space.search_params`).  Returns
+    the gates and limits (:func:`lis_params`, from :func:`._lost_in_space.search_params`);
+    ``t_more (n_more, 2)`` the usable stars beyond the ``n`` (fainter: a pair whose catalog
+    star has one of them nearer than its own star is not matched).  Returns
     ``(status, C (3, 3), star_index (n_field,), hip (n_field,), n_matched, n_verified,
     n_patterns, s, k1, p_false, rms_arcsec)``; status 1: solved, 0: no candidate
     verified, 2: stopped by ``max_time_s`` / ``max_candidates``.
@@ -157,13 +160,14 @@ def lis_solve(t, u0, k: int, combos, ends, db, params, *, n_field: int, usable):
     if u0.shape[0] != n or not 4 <= k <= min(n, 32) or n > n_field:
         raise ValueError("bad lost-in-space input sizes")
     _check_combos(combos, ends, k)
+    t_more = _NO_MORE if t_more is None else _f64(t_more, 2)
     b = db_buffers(db)
     ip, dp = lis_params(b, k, n, params)
     C = np.empty((3, 3))
     star = np.empty(n_field, dtype=np.int64)
     hip = np.empty(n_field, dtype=np.int64)
     status, m, n_verified, n_patterns, s, k1, p_false, rms = _ckernels.lis_solve(
-        t, u0, combos, ends, b.u64, b.u32, b.pstars, b.key_lo, b.key_hi_start, b.cell_start,
+        t, u0, t_more, combos, ends, b.u64, b.u32, b.pstars, b.key_lo, b.key_hi_start, b.cell_start,
         b.cell_index, b.cell_u, ip, dp, C, _usable(usable), b.hip, star, hip)
     return status, C, star, hip, m, n_verified, n_patterns, s, k1, p_false, rms
 
@@ -208,10 +212,12 @@ def _rotation_arg(C_prior) -> np.ndarray:
     return C
 
 
-def track_solve(t, w, C_prior, db, params, *, n_field: int, usable):
+def track_solve(t, w, C_prior, db, params, *, n_field: int, usable, t_more=None):
     """Tracking of the stars ``t (n, 2)`` (tangent plane at the focal scale), ``w (n, 3)``
     (their unit vectors; input rows ``usable``, None: ``0 .. n - 1``, of ``n_field``)
     from ``C_prior (3, 3)``; ``params`` the gates (:func:`._tracking.track_params`).
+    ``t_more (n_more, 2)``: the detections beyond the used ones (fainter; a pair whose
+    catalog star has one of them nearer than its own detection is not matched).
     Returns ``(code, count, p, voted, C (3, 3), star_index (n_field,), hip (n_field,),
     n_matched, p_false, rms_arcsec)``: code 0 solved, else the reason (see
     :mod:`._tracking`) with its count / chance probability."""
@@ -220,6 +226,7 @@ def track_solve(t, w, C_prior, db, params, *, n_field: int, usable):
     n = t.shape[0]
     if w.shape[0] != n or n > 64 or n > n_field:
         raise ValueError("bad tracking input sizes")
+    t_more = _NO_MORE if t_more is None else _f64(t_more, 2)
     C_prior = _rotation_arg(C_prior)
     b = db_buffers(db)
     ip, dp = _track_params(b, n, params)
@@ -227,7 +234,7 @@ def track_solve(t, w, C_prior, db, params, *, n_field: int, usable):
     star = np.empty(n_field, dtype=np.int64)
     hip = np.empty(n_field, dtype=np.int64)
     code, count, p, voted, m, p_false, rms, _ = _ckernels.track_solve(
-        t, w, C_prior, b.cell_u, b.cell_start, b.cell_index, ip, dp, C, _usable(usable),
+        t, w, t_more, C_prior, b.cell_u, b.cell_start, b.cell_index, ip, dp, C, _usable(usable),
         b.hip, star, hip)
     return code, count, p, bool(voted), C, star, hip, m, p_false, rms
 
@@ -235,7 +242,8 @@ def track_solve(t, w, C_prior, db, params, *, n_field: int, usable):
 def track_pinhole(xy, cam, m: int, C_prior, db, params):
     """:func:`track_solve` from pixel centroids ``xy (N, 2)`` (float64, C order) of a
     camera without distortion, ``cam = (x0_px, y0_px, pixel_mm, f_mm)``, at focal scale
-    1, in one compiled call; the brightest ``m`` (<= 64) rows are used.  Returns None
+    1, in one compiled call; the brightest ``m`` (<= 64) rows are used (the others as
+    ``t_more``).  Returns None
     when a centroid is not finite, else ``(code, count, p, voted, C, star_index, hip,
     u_sensor (N, 3), n_matched, p_false, rms_arcsec)``."""
     n = xy.shape[0]

@@ -9,8 +9,9 @@
 3. Candidates are re-checked against the catalog pattern's exact ratios and size (the
    size only to the focal-length tolerance), paired star by star (the permutation
    whose edges agree best), rotated by QUEST and verified (:mod:`._verify`'s rules;
-   two stars within the fine gate of one catalog star match neither, and a pair far
-   outside the frame's own scatter is dropped, as in tracking):
+   two stars within the fine gate of one catalog star match neither, a pair far
+   outside the frame's own scatter is dropped, and so is a pair whose catalog star has
+   a star beyond the ``max_verify_stars`` brightest nearer than its own, as in tracking):
    a match is accepted only when ``n_candidates * P(chance) <= p_false_max``.
 
 Steps 1-3 run in compiled code (:mod:`._ckernels` through :mod:`._kernels`): the same
@@ -100,13 +101,13 @@ def lost_in_space(field, db, opts: LisOptions) -> Identification:
     t0 = time.perf_counter()
     n = field.n
     if field.bad_rows.size:
-        usable = np.setdiff1d(np.arange(n), field.bad_rows,
-                              assume_unique=True)[:opts.max_verify_stars]
+        good = np.setdiff1d(np.arange(n), field.bad_rows, assume_unique=True)
+        usable, t_more = good[:opts.max_verify_stars], field.t[good[opts.max_verify_stars:]]
         t_use, u_use = field.t[usable], field.u0[usable]
     else:
         usable = None
         m = min(n, opts.max_verify_stars)
-        t_use, u_use = field.t[:m], field.u0[:m]
+        t_use, u_use, t_more = field.t[:m], field.u0[:m], field.t[m:]
     n_use = t_use.shape[0]
     need = max(4, opts.min_matches)
     if n_use < need:
@@ -116,7 +117,7 @@ def lost_in_space(field, db, opts: LisOptions) -> Identification:
                            fit_radial=field.fit_radial, bounds=field.bounds.tolist(), t0=t0)
     status, C, star_index, hip, n_matched, n_verified, n_patterns, s, k1, p_false, rms = \
         _kernels.lis_solve(t_use, u_use, k, pat.ordered_combinations(k), _batch_ends_array(k), db,
-                           params, n_field=n, usable=usable)
+                           params, n_field=n, usable=usable, t_more=t_more)
     u_sensor = None
     if status == 1:
         u_sensor = field.u0 if s == 1.0 and k1 == 0.0 else _kernels.unit_rows(field.t, s, k1)

@@ -19,7 +19,11 @@
    ambiguous: neither is matched.  With 8 pairs or more, a pair whose squared residual
    exceeds 20 times the pairs' upper-quartile one is not matched and the attitude is
    refitted (the scatter screen of ``_ckernels.c``: a false star inside the fine gate of
-   an undetected star, far outside the frame's own centroid scatter).
+   an undetected star, far outside the frame's own centroid scatter).  The detections
+   beyond the ``max_verify_stars`` brightest take no part in the fit, but a pair whose
+   catalog star has one of them nearer than its own detection is not matched either
+   (the star's detection ranked beyond the used ones and a false star among them fell
+   in its gate) and the attitude is refitted.
 5. **Vote.** When the prior error is comparable to the distance between stars, nearest
    neighbours are mostly wrong and so is their median: if steps 3-4 fail, the shift is
    taken where the offsets of all (star, prediction) pairs within ``g_prior`` cluster
@@ -125,22 +129,22 @@ def tracking(field, db, C_prior, *, prior_error_rad: float, focal_scale: float =
     n = field.n
     s = float(focal_scale)
     if field.bad_rows.size:
-        usable = np.setdiff1d(np.arange(n), field.bad_rows,
-                              assume_unique=True)[:min(max_verify_stars, 64)]
+        good = np.setdiff1d(np.arange(n), field.bad_rows, assume_unique=True)
+        usable, t_more = good[:min(max_verify_stars, 64)], field.t[good[min(max_verify_stars, 64):]]
         t_use, w_use = field.t[usable], field.unit(s, rows=usable)
     else:
         usable = None
         m = min(n, max_verify_stars, 64)
-        t_use, w_use = field.t[:m], field.unit(s)[:m]
+        t_use, w_use, t_more = field.t[:m], field.unit(s)[:m], field.t[m:]
     n_use = t_use.shape[0]
     if n_use < min_matches:
         return _fail(n, f"only {n_use} usable stars: tracking needs at least {min_matches}", t0)
     if s != 1.0:
-        t_use = t_use * s
+        t_use, t_more = t_use * s, t_more * s
     params = track_params(field.bounds.tolist(), s, field.error_rad, prior_error_rad, n_use,
                           min_matches, p_false_max)
     code, count, p, voted, C, star_index, hip, n_matched, p_false, rms = _kernels.track_solve(
-        t_use, w_use, C_prior, db, params, n_field=n, usable=usable)
+        t_use, w_use, C_prior, db, params, n_field=n, usable=usable, t_more=t_more)
     if stats is not None:
         stats["voted"] = voted
     if code:
