@@ -185,9 +185,9 @@ def _fit_shape_floor(zz, X, w):
     sigma_f2)``: ``sigma_f2`` the unconstrained ``f^2``'s standard error (for Gaussian
     errors the weights ``1 / (tr V / 2)^2`` are twice the inverse variance of ``z z^T``'s
     diagonal, so the covariance is ``2 A^-1``); None when singular."""
-    D = np.array([1.0, 2.0, 1.0])
-    A = np.einsum("n,nki,k,nkj->ij", w, X, D, X)
-    b = np.einsum("n,nki,k,nk->i", w, X, D, zz)
+    Xw = X * (w[:, None, None] * _ROW_WEIGHTS[None, :, None])
+    A = Xw.reshape(-1, 4).T @ X.reshape(-1, 4)
+    b = Xw.reshape(-1, 4).T @ zz.reshape(-1)
     try:
         A_inv = np.linalg.inv(A)
         theta = A_inv @ b
@@ -207,6 +207,8 @@ def _fit_shape_floor(zz, X, w):
     return theta, sigma_f2
 
 
+#: The rows of ``z z^T`` (xx, xy, yy) in the least squares: the off-diagonal counts twice.
+_ROW_WEIGHTS = np.array([1.0, 2.0, 1.0])
 #: ``E_k`` of the shape's three components (xx, xy, yy) and the row order of ``z z^T``.
 _BASIS = np.array([[[1.0, 0.0], [0.0, 0.0]], [[0.0, 1.0], [1.0, 0.0]], [[0.0, 0.0], [0.0, 1.0]]])
 
@@ -218,9 +220,14 @@ def residual_moments(w_sensor, weights, whiten_per_rad, floor_gram_per_px2):
     A rotation fitted to ``w_sensor`` with scalar ``weights`` leaves the residuals
     ``r_i = sum_j M_ij n_j``, ``M_ij = delta_ij P_i - w_j [u_i]x F^-1 [u_j]x^T``,
     ``F = sum w_j P_j``, ``P = I - u u^T`` (first order in the errors ``n_j``).  With the
-    error covariance ``D_j (S + f^2 G_j) D_j^T`` (``D_j = J_j L_j``, the pseudo-inverse of the
-    whitening ``W_j = L_j^-1 J_j+``) the whitened residual ``z_i = W_i r_i`` has
-    ``E[z_i z_i^T] = sum_j A_ij (S + f^2 G_j) A_ij^T``, ``A_ij = W_i M_ij D_j``.
+    error covariance ``D_j V_j D_j^T``, ``V_j = S + f^2 G_j`` (``D_j = J_j L_j``, the
+    pseudo-inverse of the whitening ``W_j = L_j^-1 J_j+``), the whitened residual
+    ``z_i = W_i r_i`` has ``E[z_i z_i^T] = sum_j A_ij V_j A_ij^T`` with
+    ``A_ij = delta_ij I - R_i Q_j``, ``R_i = W_i [u_i]x F^-1``, ``Q_j = w_j [u_j]x^T D_j``:
+
+    ``V_i - R_i Q_i V_i - V_i Q_i^T R_i^T + R_i (sum_j Q_j V_j Q_j^T) R_i^T``,
+
+    whose sum is one 3 x 3 matrix for all ``i`` (O(N), not O(N^2)).
 
     Parameters
     ----------
@@ -248,18 +255,20 @@ def residual_moments(w_sensor, weights, whiten_per_rad, floor_gram_per_px2):
     ux = np.zeros((n, 3, 3))
     ux[:, 0, 1], ux[:, 0, 2], ux[:, 1, 2] = -u[:, 2], u[:, 1], -u[:, 0]
     ux[:, 1, 0], ux[:, 2, 0], ux[:, 2, 1] = u[:, 2], -u[:, 1], u[:, 0]
-    Wx = np.einsum("iab,ibc->iac", W, ux)                      # W_i [u_i]x       (n, 2, 3)
-    Dm = np.swapaxes(W, 1, 2) @ np.linalg.inv(W @ np.swapaxes(W, 1, 2))    # pinv(W_j) (n, 3, 2)
-    xD = wts[:, None, None] * np.einsum("jba,jbc->jac", ux, Dm)  # w_j [u_j]x^T D_j (n, 3, 2)
-    A = -np.einsum("iab,bc,jcd->ijad", Wx, F_inv, xD)          # (n, n, 2, 2)
-    diag = np.einsum("iab,ibc->iac", W, Dm)                    # W_i P_i D_i (= I)
-    A[np.arange(n), np.arange(n)] += diag
+    Wt = np.swapaxes(W, 1, 2)
+    Dm = Wt @ np.linalg.inv(W @ Wt)                              # pinv(W_j)          (n, 3, 2)
+    R = W @ ux @ F_inv                                          # (n, 2, 3)
+    Q = wts[:, None, None] * (np.swapaxes(ux, 1, 2) @ Dm)       # (n, 3, 2)
+    RQ = R @ Q                                                  # (n, 2, 2)
+    Rt = np.swapaxes(R, 1, 2)
+    Qt = np.swapaxes(Q, 1, 2)
     X = np.empty((n, 3, 4))
-    for k in range(3):
-        V = np.einsum("ijab,bc,ijdc->iad", A, _BASIS[k], A)
-        X[:, :, k] = V[:, [0, 0, 1], [0, 1, 1]]
-    V = np.einsum("ijab,jbc,ijdc->iad", A, G, A)
-    X[:, :, 3] = V[:, [0, 0, 1], [0, 1, 1]]
+    for k, V in enumerate((*_BASIS, None)):
+        V = G if V is None else np.broadcast_to(V, (n, 2, 2))
+        M = np.sum(Q @ V @ Qt, axis=0)                          # sum_j Q_j V_j Q_j^T  (3, 3)
+        RQV = RQ @ V
+        E = V - RQV - np.swapaxes(RQV, 1, 2) + R @ M @ Rt
+        X[:, :, k] = E[:, [0, 0, 1], [0, 1, 1]]
     return X
 
 
