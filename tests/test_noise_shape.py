@@ -73,6 +73,12 @@ def _draw(rng, cam, xy, cov, S, f_px, floor_used_px):
     return z, residual_moments(wm, wts, W, G)
 
 
+def _feed(model, z, X, t_s):
+    """Add a frame as the pipeline does: weighted by the model it was processed with."""
+    est = model.estimate(t_s)
+    model.add(z, X, t_s, None if est is None else [est[0][0, 0], est[0][0, 1], est[0][1, 1], est[1]])
+
+
 def test_residual_moments_are_the_fitted_residuals_second_moments():
     """A field with one star far brighter than the rest (it carries the fit and shows little
     of its error): Monte Carlo ``z z^T`` against the expectation, star by star."""
@@ -102,18 +108,19 @@ def test_noise_model_recovers_shape_and_floor():
     model = NoiseModel(window_s=4.0, min_stars=30)
     assert model.estimate(0.0) is None
     for k in range(40):
-        xy, cov = _field(rng, 12, cam)
+        xy, cov = _field(rng, 30, cam)
         z, X = _draw(rng, cam, xy, cov, S_true, f_true, 0.005)
-        model.add(z, X, 0.1 * k)
+        _feed(model, z, X, 0.1 * k)
     S, f2 = model.estimate(3.95)
-    assert np.allclose(S, S_true, atol=0.2)
-    assert np.sqrt(f2) == pytest.approx(f_true, rel=0.15)
+    # 1200 stars: S's elements to ~0.1 (one standard error; f^2 carries the bright ones)
+    assert np.allclose(S, S_true, atol=0.3)
+    assert np.sqrt(f2) == pytest.approx(f_true, rel=0.1)
     # a misidentified star far out is left out
-    z, X = _draw(rng, cam, *_field(rng, 12, cam), S_true, f_true, 0.005)
+    z, X = _draw(rng, cam, *_field(rng, 30, cam), S_true, f_true, 0.005)
     z[0] = [60.0, -40.0]
-    model.add(z, X, 4.0)
+    _feed(model, z, X, 4.0)
     S2, f2b = model.estimate(4.0)
-    assert np.allclose(S2, S_true, atol=0.2) and np.sqrt(f2b) == pytest.approx(f_true, rel=0.15)
+    assert np.allclose(S2, S_true, atol=0.3) and np.sqrt(f2b) == pytest.approx(f_true, rel=0.1)
     # the window is in seconds: frames older than the model's reach are forgotten
     assert model.estimate(100.0) is None
 
@@ -123,7 +130,7 @@ def test_noise_model_without_a_floor_and_after_cloud():
     cam = camera_preset("A1")
     clean = NoiseModel()
     for k in range(20):
-        clean.add(*_draw(rng, cam, *_field(rng, 15, cam), np.eye(2), 0.0, 0.005), 0.1 * k)
+        _feed(clean, *_draw(rng, cam, *_field(rng, 15, cam), np.eye(2), 0.0, 0.005), 0.1 * k)
     S, f2 = clean.estimate(1.95)
     assert np.allclose(S, np.eye(2), atol=0.2) and np.sqrt(f2) < 0.01
     # seeing, then 2 s of cloud, then 3 frames of 4 stars: the 2 s window alone has 12
@@ -131,9 +138,9 @@ def test_noise_model_without_a_floor_and_after_cloud():
     # does not fall back to none
     seeing = NoiseModel()
     for k in range(20):
-        seeing.add(*_draw(rng, cam, *_field(rng, 15, cam), np.eye(2), 0.05, 0.005), 0.1 * k)
+        _feed(seeing, *_draw(rng, cam, *_field(rng, 15, cam), np.eye(2), 0.05, 0.005), 0.1 * k)
     for k in range(3):
-        seeing.add(*_draw(rng, cam, *_field(rng, 4, cam), np.eye(2), 0.05, 0.05), 4.0 + 0.1 * k)
+        _feed(seeing, *_draw(rng, cam, *_field(rng, 4, cam), np.eye(2), 0.05, 0.05), 4.0 + 0.1 * k)
     assert [f[0] for f in seeing._recent(4.25, seeing.window_s)] == pytest.approx([1.8, 1.9, 4.0, 4.1, 4.2])
     S, f2 = seeing.estimate(4.25)
     assert np.sqrt(f2) == pytest.approx(0.05, rel=0.4)

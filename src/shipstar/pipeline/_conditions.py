@@ -84,9 +84,10 @@ class NoiseModel:
     weights: a star that carries the fit shows little of its error, and none of it is lost
     to a leverage approximation).  Over the frames of the last :data:`SHAPE_WINDOW_S`
     seconds ``(S, f^2)`` is a least-squares fit of ``z z^T`` to those expectations, each
-    star weighted by its expected scatter and the fit re-weighted three times; whitened residuals
-    beyond :data:`SHAPE_CLIP` under the model are left out (a misidentified or blended
-    star).  A floor that comes out negative is 0 (the Cramer-Rao covariances explain the
+    star weighted by its expected scatter: first under the model its frame was processed
+    with (each frame's normal equations, kept when it is added), then once more under
+    that first fit's model; whitened residuals beyond :data:`SHAPE_CLIP` under it are left
+    out (a misidentified or blended star).  A floor that comes out negative is 0 (the Cramer-Rao covariances explain the
     residuals).  When the window has fewer than ``min_stars`` residuals (after cloud) or
     does not show the floor at one sigma (its stars all faint), older frames up to
     :data:`NOISE_MAX_AGE_S` join it: a floor collapsing to 0 there would give the next
@@ -116,24 +117,37 @@ class NoiseModel:
         """The frames of the last ``age_s`` seconds; with fewer than ``min_stars``
         residuals there, the newest older ones that reach ``min_stars``."""
         frames = [f for f in self._frames if f[0] >= t_s - age_s]
-        n = sum(len(f[1]) for f in frames)
+        n = sum(f[3] for f in frames)
         older = [f for f in self._frames if f[0] < t_s - age_s]
         while n < self.min_stars and older:
             f = older.pop()
             frames.insert(0, f)
-            n += len(f[1])
+            n += f[3]
         return frames
 
-    def add(self, z, X, t_s: float) -> None:
+    def add(self, z, X, t_s: float, theta_used=None) -> None:
         """Add a frame's whitened residuals ``z`` (M, 2) and their expectations ``X``
-        (M, 3, 4): ``E[(z_x^2, z_x z_y, z_y^2)] = X @ (S_xx, S_xy, S_yy, f^2)``; at ``t_s`` (s)."""
+        (M, 3, 4): ``E[(z_x^2, z_x z_y, z_y^2)] = X @ (S_xx, S_xy, S_yy, f^2)``; at ``t_s`` (s).
+
+        ``theta_used`` (4,): the noise model the frame was processed with (None: no estimate
+        yet, ``S = I``, no floor).  The frame keeps its normal equations with each star
+        weighted by its expected scatter under that model, ``1 / (tr V / 2)^2``,
+        ``V = X theta_used``, the gross outliers (beyond ``_FIRST_CLIP``) left out: the first
+        pass of :meth:`estimate` sums them, the second re-weights the window's stars once
+        with the first pass's model."""
         z = np.asarray(z, float).reshape(-1, 2)
         X = np.asarray(X, float).reshape(-1, 3, 4)
         ok = np.all(np.isfinite(z), axis=1) & np.all(np.isfinite(X), axis=(1, 2))
-        if np.count_nonzero(ok) < 3:
+        z, X = z[ok], X[ok]
+        theta = np.array([1.0, 0.0, 1.0, 0.0]) if theta_used is None else np.asarray(theta_used, float)
+        zz = np.stack([z[:, 0] ** 2, z[:, 0] * z[:, 1], z[:, 1] ** 2], axis=1)
+        use, w = _clip_and_weights(z, X, theta, _FIRST_CLIP)
+        if np.count_nonzero(use) < 3:
             return
+        z, zz, X, w = z[use], zz[use], X[use], w[use]
+        A, b = _normal_equations(zz, X, w)
         self._prune(t_s)
-        self._frames.append((float(t_s), z[ok], X[ok]))
+        self._frames.append((float(t_s), A, b, len(z), z, zz, X))
         self._cache = None
 
     def estimate(self, t_s: float):
@@ -152,42 +166,55 @@ class NoiseModel:
         return result
 
     def _fit(self, frames):
-        """``(S, f2, sigma_f2)`` from ``frames``, or None."""
-        if sum(len(f[1]) for f in frames) < self.min_stars:
+        """``(S, f2, sigma_f2)`` from ``frames``, or None: the frames' own normal equations
+        summed, then the stars re-weighted once with that model (those beyond
+        :data:`SHAPE_CLIP` under it left out)."""
+        if sum(f[3] for f in frames) < self.min_stars:
             return None
-        z = np.concatenate([f[1] for f in frames])
-        X = np.concatenate([f[2] for f in frames])
-        zz = np.stack([z[:, 0] ** 2, z[:, 0] * z[:, 1], z[:, 1] ** 2], axis=1)
-        theta = np.array([1.0, 0.0, 1.0, 0.0])
-        # the first pass from no floor clips only the gross outliers (a bright star's
-        # residual may be many of its Cramer-Rao sigmas when the seeing is not yet known)
-        for clip in (_FIRST_CLIP, SHAPE_CLIP, SHAPE_CLIP, SHAPE_CLIP):
-            V = X @ theta                                        # (n, 3): E[z z^T] under theta
-            det = V[:, 0] * V[:, 2] - V[:, 1] ** 2
-            if np.any(~(det > 0.0)):
-                return None
-            chi2 = (z[:, 0] ** 2 * V[:, 2] - 2.0 * z[:, 0] * z[:, 1] * V[:, 1] + z[:, 1] ** 2 * V[:, 0]) / det
-            use = chi2 < clip ** 2
-            if np.count_nonzero(use) < self.min_stars:
-                return None
-            w = 4.0 / (V[use, 0] + V[use, 2]) ** 2               # 1 / (tr V / 2)^2
-            fit = _fit_shape_floor(zz[use], X[use], w)
-            if fit is None:
-                return None
-            theta, sigma_f2 = fit
+        fit = _fit_shape_floor(sum(f[1] for f in frames), sum(f[2] for f in frames))
+        if fit is None:
+            return None
+        z = np.concatenate([f[4] for f in frames])
+        zz = np.concatenate([f[5] for f in frames])
+        X = np.concatenate([f[6] for f in frames])
+        use, w = _clip_and_weights(z, X, fit[0], SHAPE_CLIP)
+        if np.count_nonzero(use) < self.min_stars:
+            return None
+        fit = _fit_shape_floor(*_normal_equations(zz[use], X[use], w[use]))
+        if fit is None:
+            return None
+        theta, sigma_f2 = fit
         S = np.array([[theta[0], theta[1]], [theta[1], theta[2]]])
         return S, float(theta[3]), sigma_f2
 
 
-def _fit_shape_floor(zz, X, w):
-    """Weighted least squares of ``zz (n, 3) = X (n, 3, 4) @ theta`` (the off-diagonal
-    counted twice), ``theta = (S_xx, S_xy, S_yy, f^2)`` with ``f^2 >= 0``.  ``(theta,
+def _clip_and_weights(z, X, theta, clip: float):
+    """``(use (n,) bool, w (n,))``: the stars within ``clip`` sigma under the model
+    ``theta`` and their weights ``1 / (tr V / 2)^2``, ``V = X theta``."""
+    V = X @ theta                                            # (n, 3): E[z z^T] under theta
+    det = V[:, 0] * V[:, 2] - V[:, 1] ** 2
+    good = det > 0.0
+    chi2 = np.full(len(z), np.inf)
+    chi2[good] = (z[good, 0] ** 2 * V[good, 2] - 2.0 * z[good, 0] * z[good, 1] * V[good, 1]
+                  + z[good, 1] ** 2 * V[good, 0]) / det[good]
+    w = np.zeros(len(z))
+    w[good] = 4.0 / (V[good, 0] + V[good, 2]) ** 2
+    return chi2 < clip ** 2, w
+
+
+def _normal_equations(zz, X, w):
+    """``(A (4, 4), b (4,))`` of the weighted least squares ``zz (n, 3) = X (n, 3, 4) theta``,
+    the off-diagonal row counted twice."""
+    Xw = X * (w[:, None, None] * _ROW_WEIGHTS[None, :, None])
+    return Xw.reshape(-1, 4).T @ X.reshape(-1, 4), Xw.reshape(-1, 4).T @ zz.reshape(-1)
+
+
+def _fit_shape_floor(A, b):
+    """``theta = (S_xx, S_xy, S_yy, f^2)`` from the weighted normal equations ``A theta = b``
+    of ``z z^T = X theta`` (the off-diagonal counted twice), with ``f^2 >= 0``.  ``(theta,
     sigma_f2)``: ``sigma_f2`` the unconstrained ``f^2``'s standard error (for Gaussian
     errors the weights ``1 / (tr V / 2)^2`` are twice the inverse variance of ``z z^T``'s
     diagonal, so the covariance is ``2 A^-1``); None when singular."""
-    Xw = X * (w[:, None, None] * _ROW_WEIGHTS[None, :, None])
-    A = Xw.reshape(-1, 4).T @ X.reshape(-1, 4)
-    b = Xw.reshape(-1, 4).T @ zz.reshape(-1)
     try:
         A_inv = np.linalg.inv(A)
         theta = A_inv @ b
@@ -198,8 +225,7 @@ def _fit_shape_floor(zz, X, w):
         return None
     if not np.all(np.isfinite(theta)):
         return None
-    # an S that is not positive definite (a first pass weighted without the floor, few
-    # stars) has its eigenvalues raised to _MIN_SHAPE: the next pass re-weights from it
+    # an S that is not positive definite (few stars) has its eigenvalues raised to _MIN_SHAPE
     lam, vec = np.linalg.eigh(np.array([[theta[0], theta[1]], [theta[1], theta[2]]]))
     if lam[0] < _MIN_SHAPE:
         S = (vec * np.maximum(lam, _MIN_SHAPE)) @ vec.T
@@ -345,7 +371,7 @@ class ConditionMonitor:
             return CLOUDED_REASON
         return reason
 
-    def add_solved(self, fr, floor_used_px: float, first=None, t_s: float = math.nan) -> None:
+    def add_solved(self, fr, floor_used_px: float, first=None, t_s: float = math.nan, shape=None) -> None:
         """Feed a solved frame's inlier residuals to the noise model (:class:`NoiseModel`).
 
         ``first`` (:class:`~shipstar.attitude.HorizontalAttitude`): the frame's first solve,
@@ -353,7 +379,8 @@ class ConditionMonitor:
         inliers with the scalar weights: a solution that the model's shape did not weight, so
         that the model depends on the last :data:`SHAPE_WINDOW_S` seconds (a chunk's warm-up
         rebuilds it, ``pipeline._measure.WARMUP_S``) rather than on every earlier one through
-        the weights it gave them."""
+        the weights it gave them.  ``shape``: the noise model's ``S`` the frame was processed
+        with (None before an estimate)."""
         inputs = fr.solve_inputs
         if inputs is None or inputs.weights is None or not fr.solved or inputs.whiten_per_rad is None \
                 or first is None or not first.solved:
@@ -371,7 +398,8 @@ class ConditionMonitor:
         if X is None:
             return
         z = np.einsum("nij,nj->ni", W, e)
-        self.noise_model.add(z[good], X[good], t_s)
+        theta = None if shape is None else np.array([shape[0][0], shape[0][1], shape[1][1], floor_used_px ** 2])
+        self.noise_model.add(z[good], X[good], t_s, theta)
 
     def _displacement_px(self, C_then, C_now, xy_px) -> np.ndarray:
         """How far (px) a star now at ``xy_px`` was from there with the attitude ``C_then``."""

@@ -541,7 +541,7 @@ class SensorProcessor:
         if self._motion is not None and fr.solved:
             fr = self._streaks(fr, t_s, extracted=frame.xy_px is None)
         if fr.solved:
-            self.conditions.add_solved(fr, self._floor_used_px, h, t_s)
+            self.conditions.add_solved(fr, self._floor_used_px, h, t_s, self._shape)
             fr = replace(fr, noise_floor_arcsec=self.noise_floor_arcsec)
         else:
             reason = self._lost_reason(fr.reason, frame, n_det, t_s)
