@@ -11,8 +11,9 @@ at 10 frames/s, ``--duration-s`` long, default 90 s = 1800 frames, 3.8 GB; writt
 
 all with the same ``--chunk-s`` (default 30 s: 3 chunks per sensor, 6 tasks).  Each run is a
 separate command; printed per run are the wall time of the whole command, for the archive
-runs the processing time once the frames are indexed (``--json``'s ``wall.process_s``; the
-workers load the catalog and star databases while the frames are indexed), and the CPU
+runs the cluster's start (``--json``'s ``wall.connect_s``: the LocalCluster is forked after
+the frames are indexed, its workers starting with the catalog and star databases this
+process loaded) and the processing time once it is up (``wall.process_s``), and the CPU
 time of the command with its worker processes (``getrusage`` of the children: the same
 CPU in every configuration means the difference in wall time is parallelism, not
 overhead).  Then the medians over ``--repeat`` and the ratios: 2 against 1 archive workers
@@ -82,8 +83,9 @@ def run(root: Path, name: str, command: str, workers: int, chunk_s: float) -> di
         raise SystemExit(f"{name}: exit {proc.returncode}: {proc.stderr[-3000:]}")
     summary = json.loads(proc.stdout)
     process_s = summary["wall"]["process_s"] if "wall" in summary else wall
+    connect_s = summary["wall"]["connect_s"] if "wall" in summary else 0.0
     md5 = hashlib.md5(out.read_bytes()).hexdigest()
-    return {"wall_s": wall, "process_s": process_s, "cpu_s": cpu, "md5": md5}
+    return {"wall_s": wall, "process_s": process_s, "connect_s": connect_s, "cpu_s": cpu, "md5": md5}
 
 
 def main(argv=None) -> int:
@@ -108,8 +110,12 @@ def main(argv=None) -> int:
         for name in order:
             res = run(root, name, *plan[name], a.chunk_s)
             runs[name].append(res)
-            print(f"  repeat {r + 1} {name:6s} wall {res['wall_s']:6.1f} s  processing {res['process_s']:6.1f} s  "
-                  f"CPU {res['cpu_s']:6.1f} s  load {os.getloadavg()[0]:5.2f}  md5 {res['md5']}", flush=True)
+            print(f"  repeat {r + 1} {name:6s} wall {res['wall_s']:6.1f} s  cluster start {res['connect_s']:4.1f} s  "
+                  f"processing {res['process_s']:6.1f} s  CPU {res['cpu_s']:6.1f} s  load {os.getloadavg()[0]:5.2f}  "
+                  f"md5 {res['md5']}", flush=True)
+        d1, d2 = runs["dask1"][-1], runs["dask2"][-1]
+        print(f"  repeat {r + 1} pair: {d1['wall_s'] / d2['wall_s']:.2f}x whole command, "
+              f"{d1['process_s'] / d2['process_s']:.2f}x processing", flush=True)
     med = {k: (statistics.median(x["wall_s"] for x in v), statistics.median(x["process_s"] for x in v),
                statistics.median(x["cpu_s"] for x in v)) for k, v in runs.items() if v}
     ref = runs["serial"][0]["md5"]

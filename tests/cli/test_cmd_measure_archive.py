@@ -149,6 +149,30 @@ def test_star_lists_through_the_python_api(cluster, tmp_path):
     assert (tmp_path / "dask.csv").read_text() == (tmp_path / "serial.csv").read_text()
 
 
+def test_results_sent_again_by_a_later_attempt_are_taken_once_in_order():
+    """A task of a session's last chunk sends its results as they come; an attempt that
+    ran again sends them again from the first, and pieces of two attempts may interleave:
+    each result is handed on once, in order; a piece past a gap waits for it."""
+    from shipstar.pipeline._archive import _Received
+
+    results = [f"frame {i}" for i in range(10)]
+    r = _Received()
+    r.take(0, results[0:4])                    # attempt 1
+    r.take(4, results[4:6])
+    assert r.pop() == results[:6]
+    r.take(0, results[0:3])                    # attempt 2, from the first: nothing new
+    r.take(6, results[6:9])                    # attempt 1's last piece before it died
+    r.take(3, results[3:7])                    # attempt 2: only its last result is new
+    assert r.pop() == results[6:9] and r.n == 9
+    r.take(9, results[9:10])
+    assert r.pop() == results[9:] and r.n == 10
+    gap = _Received()
+    gap.take(5, results[5:10])                 # past a gap: waits
+    assert gap.pop() == [] and gap.n == 0
+    gap.take(0, results[0:5])
+    assert gap.pop() == results and gap.n == 10
+
+
 def test_a_worker_killed_in_the_middle_of_a_task_has_it_run_again(root, cluster):
     lc, client = cluster
     pids = client.run(os.getpid)                        # worker address -> its process

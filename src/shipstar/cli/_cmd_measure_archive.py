@@ -318,7 +318,7 @@ def run(args) -> int:
     import dask
 
     from shipstar.cli._cmd_measure import _configs
-    from shipstar.pipeline._archive import QUIET_DASK, connect, warm_workers
+    from shipstar.pipeline._archive import QUIET_DASK, connect, local_start_method, warm_here, warm_workers
     from shipstar.pipeline._measure import default_workers
     from shipstar.pipeline._progress import ProgressBar
 
@@ -335,20 +335,32 @@ def run(args) -> int:
     timing = {"connect_s": 0.0, "process_s": 0.0}
     try:
         todo = [s for s in sessions if not s.skipped]
-        if todo:                                    # the cluster first: its workers load the catalog and
-            t0 = time.perf_counter()                # star databases while the frames are indexed here
-            client, cluster = connect(args.scheduler, workers=n_workers, timeout_s=args.connect_timeout_s)
+        cameras = [c.camera for c in _configs(todo[0].args)] if todo else []
+        # a scheduler's workers load the catalog and star databases while the frames are
+        # indexed here; a LocalCluster starts after the indexing, its workers forked from
+        # this process with them already loaded (the swap check loads them here anyway)
+        if todo and args.scheduler:
+            t0 = time.perf_counter()
+            client, cluster = connect(args.scheduler, timeout_s=args.connect_timeout_s)
             timing["connect_s"] = time.perf_counter() - t0
-            warming = warm_workers(client, [c.camera for c in _configs(todo[0].args)])
+            warming = warm_workers(client, cameras)
         for s in todo:
             _prepare(s)
             print_overrides("measure-archive", s.overrides)
+        if todo and not args.scheduler and any(s.job is not None and not s.swapped for s in todo):
+            t0 = time.perf_counter()
+            method = local_start_method()
+            if method == "fork":
+                warm_here(cameras)
+            client, cluster = connect(None, workers=n_workers, start_method=method)
+            timing["connect_s"] = time.perf_counter() - t0
+            warming = warm_workers(client, cameras)
         with StopOnSignals() as stop:
             if any(s.job is not None and not s.swapped for s in sessions):
                 t1 = time.perf_counter()
                 _process_all(sessions, client, args, stop, bar)
                 timing["process_s"] = time.perf_counter() - t1
-        if todo:
+        if client is not None:
             del warming
     finally:
         bar.close()

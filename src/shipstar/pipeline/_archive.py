@@ -33,7 +33,8 @@ from dataclasses import dataclass
 from shipstar.errors import ShipstarError
 
 __all__ = ["ChunkFailed", "DaskTasks", "EVENT_TOPIC", "attempts_report", "connect", "describe_chunk",
-           "run_archive", "ArchiveOutcome", "DEFAULT_RETRIES", "DEFAULT_RETRY_DELAY_S", "warm_workers"]
+           "run_archive", "ArchiveOutcome", "DEFAULT_RETRIES", "DEFAULT_RETRY_DELAY_S", "local_start_method",
+           "warm_here", "warm_workers"]
 
 #: The scheduler's event topic of every attempt (``client.get_events(EVENT_TOPIC)``).
 EVENT_TOPIC = "shipstar-archive"
@@ -43,6 +44,13 @@ DEFAULT_RETRIES = 2
 DEFAULT_RETRY_DELAY_S = 1.0
 #: Seconds between looks at the futures while none has finished.
 _POLL_S = 0.05
+#: A job (:class:`~shipstar.pipeline._measure.MeasureJob`) up to this size (pickled; 11 kB
+#: with a 90-row track) goes with each task; a larger one is sent once.
+_INLINE_JOB_BYTES = 1 << 20
+#: Results a task of a session's last chunk sends at a time (:func:`_stream_put`): the
+#: merge and fusion here keep up with the workers instead of all starting when the last
+#: tasks end (a 90 s session in 30 s chunks: a third of its 4-6 s of fusion, measured).
+STREAM_FRAMES = 20
 #: Dask settings of a LocalCluster (and of this process): without the statistical profiler
 #: (a stack sample of the busy thread every 10 ms), the GIL monitor and the 20 ms event-loop
 #: tick, which together cost an idle worker and this process 4 % of a core each (measured:
@@ -119,12 +127,29 @@ def _check_readable(frames) -> None:
                 fh.read(1)
 
 
+def _stream_put(queue: str, offset: int, items) -> None:
+    """Send results ``offset ..`` of a task to the driver now, through the scheduler's queue
+    ``queue`` (pickled: the queue carries msgpack data); returns once the scheduler holds
+    them, so that they are queued before the task's own result is known."""
+    import pickle
+
+    from distributed import get_worker
+    from distributed.utils import sync
+
+    worker = get_worker()
+    blob = pickle.dumps(items, protocol=pickle.HIGHEST_PROTOCOL)
+    sync(worker.loop, worker.scheduler.queue_put, name=queue, data={"offset": offset, "items": blob})
+
+
 def _chunk_task(job, sensor: int, piece, lo: int, keep_from: int, run_id: str, k: int,
-                retry_delay_s: float = 0.0) -> list:
+                retry_delay_s: float = 0.0, stream: str | None = None) -> tuple:
     """A task on a Dask worker: frames ``lo ..`` of one sensor (``piece``) through a fresh
-    processor; returns every ``(result, warnings)`` from frame ``keep_from`` on.  After an
-    error it waits ``retry_delay_s`` before raising (Dask retries at once: a transient
-    fault gets that long to clear)."""
+    processor; returns ``(offset, items)``: every ``(result, warnings)`` from frame
+    ``keep_from`` on, but for the first ``offset`` of them, which were sent to the driver
+    as they came (:func:`_stream_put` to queue ``stream``, :data:`STREAM_FRAMES` at a
+    time; without ``stream`` none is, ``offset`` is 0).  After an error it waits
+    ``retry_delay_s`` before raising (Dask retries at once: a transient fault gets that
+    long to clear)."""
     from shipstar.pipeline._measure import process_chunk
 
     _log_event(run_id, k, "start")
@@ -132,14 +157,22 @@ def _chunk_task(job, sensor: int, piece, lo: int, keep_from: int, run_id: str, k
         frames = piece.load()
         _check_readable(frames)
         with _PROCESS_LOCK:
-            items = []
-            for batch in process_chunk(job, sensor, _Loaded(frames), lo, keep_from, 1 << 30):
-                items.extend(batch)
+            if stream is None:
+                items = []
+                for batch in process_chunk(job, sensor, _Loaded(frames), lo, keep_from, 1 << 30):
+                    items.extend(batch)
+                return 0, items
+            sent, held = 0, []
+            for batch in process_chunk(job, sensor, _Loaded(frames), lo, keep_from, STREAM_FRAMES):
+                if held:                                  # the last batch is the task's result
+                    _stream_put(stream, sent, held)
+                    sent += len(held)
+                held = batch
+            return sent, held
     except Exception as exc:
         _log_event(run_id, k, "error", _one_line(exc))
         time.sleep(retry_delay_s)
         raise
-    return items
 
 
 def _warm(cameras) -> None:
@@ -164,18 +197,58 @@ def warm_workers(client, cameras) -> list:
 
 # -- on the client ---------------------------------------------------------------------------
 
+class _Received:
+    """The results of one streaming task, as its pieces arrive: ``take(offset, items)``
+    with ``items`` its results ``offset ..`` from any attempt (every attempt gives the
+    same results; one that ran again sends them again from the first).  ``items`` holds
+    those not yet handed on, in order, each once; a piece past a gap waits for it."""
+
+    def __init__(self):
+        self.items: list = []
+        self.n = 0                                      # results received in all
+        self._early: dict = {}                          # offset -> a piece past a gap
+
+    def take(self, offset: int, items) -> None:
+        if offset > self.n:
+            if len(items) > len(self._early.get(offset, ())):
+                self._early[offset] = items
+            return
+        self._extend(offset, items)
+        while True:
+            ready = [off for off in self._early if off <= self.n]
+            if not ready:
+                return
+            off = min(ready)
+            self._extend(off, self._early.pop(off))
+
+    def _extend(self, offset: int, items) -> None:
+        fresh = items[self.n - offset:]
+        self.items.extend(fresh)
+        self.n += len(fresh)
+
+    def pop(self) -> list:
+        items, self.items = self.items, []
+        return items
+
+
 class DaskTasks:
     """Runs a session's tasks as Dask futures, a bounded number ahead of the merge, and
-    hands each task's results back whole (the runner interface of
+    hands each task's results back (the runner interface of
     :func:`~shipstar.pipeline._measure.run_measure`'s ``tasks``).  A finished task's
     results (~4.6 kB a frame: 2.8 MB for 60 s of one sensor at 10 frames/s) stay in its
     worker's memory until the merge needs them: this process holds one chunk at a time.
+    The tasks of the session's last chunk send their results as they come instead
+    (:func:`_stream_put`, through one scheduler queue per task): nothing runs after them,
+    and the merge and fusion of that chunk would otherwise all come after them, with the
+    workers idle.  An attempt that ran again sends its results again from the first; those
+    already received are skipped (every attempt gives the same results).
 
     Parameters
     ----------
     client : distributed.Client
     job : MeasureJob
-        Sent to the scheduler once (a task whose result it is).
+        Sent with each task; a large one (over ``_INLINE_JOB_BYTES`` pickled) once, as a
+        task's result.
     sources : sequence of FrameSource
         Their pieces are sent with the tasks (a FITS piece: names and times only).
     order : list of _Chunk
@@ -196,12 +269,26 @@ class DaskTasks:
         self.client, self.sources, self.order = client, sources, order
         self.run_id, self.chunk_s, self.retries = run_id, float(chunk_s), int(retries)
         self.retry_delay_s = float(retry_delay_s)
-        # the job as a task's result, not scattered data: a worker lost with it has it
-        # computed again, where scattered data would be gone for good
-        self.job = client.submit(_the_job, job, key=f"shipstar-job-{run_id}", pure=False)
+        # the job goes with every task (tasks without dependencies: the scheduler hands them
+        # to the workers in merge order as threads free up; tasks that depend on one result
+        # are all placed at once and a worker may take its last one first); a large job
+        # (a long track) once, as a task's result (not scattered data: a worker lost with
+        # it has it computed again, where scattered data would be gone for good)
+        import pickle
+
+        self._job_future = None
+        if len(pickle.dumps(job, protocol=pickle.HIGHEST_PROTOCOL)) <= _INLINE_JOB_BYTES:
+            self.job = job
+        else:
+            self.job = self._job_future = client.submit(_the_job, job, key=f"shipstar-job-{run_id}", pure=False)
         self.futures: dict = {}                         # task -> future, not yet finished
         self.results: dict = {}                         # task -> future, finished, not yet merged
         self.failed: dict = {}                          # task -> why, raised when the merge needs it
+        last = max((c.index for c in order), default=-1)
+        self.streams = {k for k, c in enumerate(order) if c.index == last}     # tasks that stream
+        self.queues: dict = {}                          # streaming task -> its Queue
+        self.got: dict = {}                             # streaming task -> its _Received
+        self.ended: set = set()                         # streaming tasks finished, all results received
         self.done = 0
         self.next_submit = 0
         self._ac = as_completed(loop=client.loop)
@@ -219,14 +306,22 @@ class DaskTasks:
         return self._ahead
 
     def _submit(self) -> None:
+        from distributed import Queue
+
         window = self._window()
         while self.next_submit < len(self.order) and len(self.futures) + len(self.results) < window \
                 and not self.failed:
             k, c = self.next_submit, self.order[self.next_submit]
             piece = self.sources[c.sensor].piece(c.lo, c.hi)
+            stream = None
+            if k in self.streams:
+                stream = f"shipstar-stream-{self.run_id}-{k}"
+                self.queues[k] = Queue(stream, client=self.client)
+                self.got[k] = _Received()
+            # the scheduler's queue hands tasks out by priority: in merge order
             f = self.client.submit(_chunk_task, self.job, c.sensor, piece, c.lo, c.keep_from, self.run_id, k,
-                                   self.retry_delay_s,
-                                   key=f"shipstar-chunk-{self.run_id}-{k}", retries=self.retries, pure=False)
+                                   self.retry_delay_s, stream, key=f"shipstar-chunk-{self.run_id}-{k}",
+                                   retries=self.retries, pure=False, priority=-k)
             self.futures[k] = f
             self._ac.add(f)
             self.next_submit += 1
@@ -235,12 +330,36 @@ class DaskTasks:
         c = self.order[k]
         return describe_chunk(c, self.sources[c.sensor], self.chunk_s)
 
+    def _drain(self, ks) -> bool:
+        """What the streaming tasks among ``ks`` sent so far; True if anything came."""
+        import pickle
+
+        came = False
+        for k in ks:
+            q = self.queues.get(k)
+            if q is None or k in self.ended:
+                continue
+            for msg in q.get(batch=True):
+                self.got[k].take(int(msg["offset"]), pickle.loads(msg["items"]))
+                came = True
+        return came
+
     def _collect(self, f) -> None:
         k = next(kk for kk, ff in self.futures.items() if ff is f)
         if f.status == "finished":                      # its results stay on the worker until merged
-            self.results[k] = f
             del self.futures[k]
             self.done += 1
+            if k not in self.streams:
+                self.results[k] = f
+                return
+            offset, items = f.result()                  # its earlier results are queued by now
+            self._drain([k])
+            if offset > self.got[k].n:                  # pragma: no cover - the scheduler lost some
+                self.failed[k] = f"{self.describe(k)}: results {self.got[k].n} .. {offset - 1} it sent were lost"
+                return
+            self.got[k].take(offset, items)
+            self.ended.add(k)
+            self._close_queue(k)
             return
         if f.status == "error":
             exc = f.exception()
@@ -254,22 +373,37 @@ class DaskTasks:
             self.failed[k] = f"{self.describe(k)}: its task was {f.status} (the scheduler or the cluster went away)"
         del self.futures[k]
 
+    def _close_queue(self, k: int) -> None:
+        q = self.queues.pop(k, None)
+        if q is not None:
+            try:
+                q.close()                               # the scheduler forgets it
+            except Exception:                           # pragma: no cover - the scheduler is gone
+                pass
+
     def next_batch(self, ks, stop):
-        """The results of one of tasks ``ks``: ``(k, items, True)``; None when ``stop`` was
-        set while waiting.  Raises :class:`ChunkFailed`."""
+        """The results of one of tasks ``ks``: ``(k, items, done)`` (a task that streams
+        may come in several pieces); None when ``stop`` was set while waiting.  Raises
+        :class:`ChunkFailed`."""
         self._submit()
         while True:
             for k in ks:
                 if k in self.results:
-                    items = self.results.pop(k).result()
+                    _, items = self.results.pop(k).result()
                     self._submit()
                     return k, items, True
+                if k in self.ended:
+                    self.ended.discard(k)
+                    return k, self.got.pop(k).pop(), True
+                if k in self.got and self.got[k].items:
+                    return k, self.got[k].pop(), False
                 if k in self.failed:                    # every row before it is written by now
                     raise ChunkFailed(self.failed[k])
             if stop is not None and stop.is_set():
                 return None
+            came = self._drain(ks)
             ready = self._ac.next_batch(block=False)
-            if not ready:
+            if not ready and not came:
                 time.sleep(_POLL_S)
                 continue
             for f in ready:
@@ -287,9 +421,12 @@ class DaskTasks:
         try:
             if pending:
                 self.client.cancel(pending)
-            self.client.cancel([self.job])
+            if self._job_future is not None:
+                self.client.cancel([self._job_future])
         except Exception:                                  # pragma: no cover - the scheduler is gone
             pass
+        for k in list(self.queues):
+            self._close_queue(k)
 
 
 def attempts_report(client, run_id: str, describe) -> list:
@@ -389,10 +526,32 @@ def run_archive(client, job, sources, out, *, retries: int = DEFAULT_RETRIES,
     return ArchiveOutcome(outcome, failed, attempts, len(runner.order) if runner is not None else 0)
 
 
+def local_start_method() -> str:
+    """How a LocalCluster started now would start its worker processes: ``fork`` where it
+    is safe (POSIX, no other thread in this process yet: the forks happen while the
+    cluster's event loop thread starts them and this thread waits), else ``spawn``.  A
+    forked worker starts with this process's modules, catalog and star databases (loaded
+    by :func:`warm_here`): measured on 2 busy cores, 2 workers start in 0.3-0.8 s
+    against 1.4-2.1 s spawned, and close in 0.05 s against 0.5-1.0 s.  A worker the
+    nanny starts again later (one that died) is spawned: this process has other threads
+    by then."""
+    from shipstar.pipeline._measure import _start_method
+
+    return _start_method()
+
+
+def warm_here(cameras) -> None:
+    """Load the catalog and the cameras' star databases in this process (before a
+    LocalCluster forks its workers from it: they start with them)."""
+    _warm(tuple(cameras))
+
+
 def connect(scheduler: str | None = None, *, workers: int = 2, threads_per_worker: int = 1,
-            timeout_s: float = 10.0):
+            timeout_s: float = 10.0, start_method: str | None = None):
     """A Dask client: to ``scheduler`` (``tcp://HOST:PORT``), else to a new LocalCluster of
-    ``workers`` processes.  Returns ``(client, cluster or None)``; close both after use.
+    ``workers`` processes, started by ``start_method`` (default
+    :func:`local_start_method`; restarted workers are always spawned).  Returns
+    ``(client, cluster or None)``; close both after use.
 
     Raises
     ------
@@ -418,8 +577,10 @@ def connect(scheduler: str | None = None, *, workers: int = 2, threads_per_worke
     old = signal.signal(signal.SIGINT, signal.SIG_IGN) if threading.current_thread() is threading.main_thread() \
         else None
     try:
+        method = start_method or local_start_method()
         with one_blas_thread_for_children(), dask.config.set(QUIET_DASK), \
-                dask.config.set({"distributed.nanny.pre-spawn-environ": WORKER_ENVIRON}):
+                dask.config.set({"distributed.nanny.pre-spawn-environ": WORKER_ENVIRON,
+                                 "distributed.worker.multiprocessing-method": method}):
             # no dashboard; the scheduler's small HTTP server (health, metrics) on a free port
             # rather than 8787, which another cluster may hold; the workers' own error logs
             # (a failed attempt's traceback) silenced: the command reports every attempt
