@@ -233,6 +233,7 @@ def test_fast_mode_writes_everything_without_a_schedule(session_dir, tmp_path):
 def test_stop_event_from_another_thread_leaves_whole_frames(session_dir, tmp_path):
     plan = plan_replay(session_sensor_dirs(session_dir), session_tables(session_dir))
     to_dir, stop, box = tmp_path / "out", threading.Event(), {}
+    before = signal.getsignal(signal.SIGINT)
 
     def run():
         box["result"] = replay(plan, to_dir, speed=1.0, start_delay_s=0.1, stop_event=stop)
@@ -249,7 +250,10 @@ def test_stop_event_from_another_thread_leaves_whole_frames(session_dir, tmp_pat
     assert 5 <= result.frames_written < 20
     frames = _assert_whole_frames_only(to_dir, plan, result.frames_written)
     assert sorted(frames) == sorted(f"{f.sensor}/{f.source.name}" for f in plan.frames[:result.frames_written])
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    # a replay in another thread leaves this process's SIGINT handler as it found it (two
+    # clean-clone CI runs found SIG_IGN here already before the replay: left by an earlier
+    # test, not found in three instrumented runs; the closing note of this stop)
+    assert signal.getsignal(signal.SIGINT) is before
 
 
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
