@@ -308,8 +308,10 @@ def test_console_in_headless_chromium(chromium, session, tmp_path):
         assert row["solved"] == 1
         assert shown["values"] == [row["heading_deg"], row["pitch_deg"], row["roll_deg"]]
         assert shown["texts"] == [f"{row[c]:.6f}" for c in ("heading_deg", "pitch_deg", "roll_deg")]
-        assert shown["sigma"] == " / ".join(f"{row[c]:.2f}" for c in
-                                            ("sigma_heading_arcsec", "sigma_pitch_arcsec", "sigma_roll_arcsec"))
+        # to 2 decimals: JavaScript's toFixed rounds a tie (0.125) up, Python's format to even
+        sigmas = [float(x) for x in shown["sigma"].split(" / ")]
+        assert sigmas == pytest.approx([row[c] for c in ("sigma_heading_arcsec", "sigma_pitch_arcsec",
+                                                         "sigma_roll_arcsec")], abs=0.005 + 1e-9)
 
         # the thumbnails: PNGs of the frames with the identified stars circled
         browser.wait_for("['A1', 'A2'].every(n => { const i = document.getElementById('thumb-' + n); "
