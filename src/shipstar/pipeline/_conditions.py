@@ -50,6 +50,8 @@ FLOOR_MIN_STARS = 30
 SHAPE_CLIP = 4.5
 #: Seconds of solved frames whose residuals give the noise model (20 frames at 10 frames/s).
 SHAPE_WINDOW_S = 2.0
+#: Whitened residuals beyond this are left out when a frame is added (gross outliers only:
+#: under the model the frame was processed with, a bright star may be many sigmas out).
 _FIRST_CLIP = 30.0
 #: The smallest eigenvalue of the shape factor ``S`` (the Cramer-Rao covariance 20x too large).
 _MIN_SHAPE = 0.05
