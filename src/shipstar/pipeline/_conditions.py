@@ -270,6 +270,8 @@ def residual_moments(w_sensor, weights, whiten_per_rad, floor_gram_per_px2):
         Rows ``(z_x^2, z_x z_y, z_y^2)``, columns ``(S_xx, S_xy, S_yy, f^2)``; None when
         the fit is singular.
     """
+    from shipstar.attitude._solve import _skew
+
     u = np.asarray(w_sensor, float)
     wts = np.asarray(weights, float)
     W = np.asarray(whiten_per_rad, float)
@@ -280,9 +282,7 @@ def residual_moments(w_sensor, weights, whiten_per_rad, floor_gram_per_px2):
         F_inv = np.linalg.inv(np.einsum("n,nij->ij", wts, P))
     except np.linalg.LinAlgError:
         return None
-    ux = np.zeros((n, 3, 3))
-    ux[:, 0, 1], ux[:, 0, 2], ux[:, 1, 2] = -u[:, 2], u[:, 1], -u[:, 0]
-    ux[:, 1, 0], ux[:, 2, 0], ux[:, 2, 1] = u[:, 2], -u[:, 1], u[:, 0]
+    ux = _skew(u)                                               # [u_i]x           (n, 3, 3)
     Wt = np.swapaxes(W, 1, 2)
     Dm = Wt @ np.linalg.inv(W @ Wt)                              # pinv(W_j)          (n, 3, 2)
     R = W @ ux @ F_inv                                          # (n, 2, 3)
