@@ -209,6 +209,32 @@ def test_blind_solve_of_rendered_frames(fov_deg):
     assert rotation_angle_rad(res.C_icrs_from_sensor.T @ C) < 5 * scale
 
 
+def test_blind_time_budget_excludes_loading_the_band_databases(monkeypatch):
+    """A cold cache builds each band's database inside the blind search (seconds each):
+    that time must not count against ``max_time_s``.  The real databases are used, only
+    made slow to arrive: before the fix a clean CI clone failed virgo-blind this way."""
+    import time as _time
+
+    from shipstar.identify import _blind
+    from shipstar.simulate import simulate_frame
+
+    cam = _wide_camera(22.0)
+    (C,) = random_attitudes(1, np.random.default_rng(22))
+    frame = simulate_frame(cam, C_icrs_from_sensor=C, seed=2)
+    res = solve_image(frame.image)                       # warm: every band it needs is cached
+    assert res.solved, res.reason
+    real = _blind.band_database
+
+    def slow_band_database(band, **kw):
+        _time.sleep(0.6)                                  # a cold build, shortened
+        return real(band, **kw)
+
+    monkeypatch.setattr(_blind, "band_database", slow_band_database)
+    res2 = solve_image(frame.image, max_time_s=0.5)
+    assert res2.solved, res2.reason
+    assert rotation_angle_rad(res2.C_icrs_from_sensor.T @ res.C_icrs_from_sensor) < 1e-9
+
+
 def test_band_magnitude_limits_are_the_default_rule():
     from shipstar.identify._blind import BANDS
     from shipstar.identify._database import default_mag_limit

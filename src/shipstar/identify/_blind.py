@@ -189,6 +189,10 @@ def solve_bands(xy_px, width_px: int, height_px: int, hyps, *, centroid_error_px
     xy_px : ndarray (N, 2)
         Centroids, brightest first.
     hyps : list of Hypothesis
+    max_time_s : float
+        The search's time budget.  Loading a band's database (or building it, on a cold
+        cache: seconds) does not count against it, so a cold cache or a loaded host
+        cannot turn a solvable frame into a timed-out one.
     databases : dict, optional
         ``band index -> StarDatabase`` to use instead of the cached band databases.
 
@@ -218,14 +222,19 @@ def solve_bands(xy_px, width_px: int, height_px: int, hyps, *, centroid_error_px
     fields = {}
     reasons = []
     n_patterns = n_candidates = 0
+    t_db = 0.0                  # loading (or, on a cold cache, building) a band's database
+    timed_out = False           # is not search time: it does not count against max_time_s
     for k_stars in passes:
         for hyp in hyps:
-            left = max_time_s - (time.perf_counter() - t0)
+            left = max_time_s - (time.perf_counter() - t0 - t_db)
             if left <= 0.0:
+                timed_out = True
                 break
             b = hyp.band.index
             if b not in dbs:
+                t_load = time.perf_counter()
                 dbs[b] = band_database(hyp.band, mag_limit=mag_limit)
+                t_db += time.perf_counter() - t_load
             key = (b, hyp.fov_x_rad)
             if key not in fields:
                 fields[key] = field_from_pinhole(xy_px, width_px=width_px, height_px=height_px,
@@ -243,8 +252,12 @@ def solve_bands(xy_px, width_px: int, height_px: int, hyps, *, centroid_error_px
                                 time_s=time.perf_counter() - t0)
                 return ident, hyp, dbs[b], runs
             reasons.append(ident.reason)
+        if timed_out:
+            break
+    stop = (f"the {max_time_s:g} s search budget was spent after {len(reasons)} of {runs} searches"
+            if timed_out else f"{len(reasons)} searches")
     reason = (f"no verified match in {len(hyps)} field-of-view hypothesis(es) "
-              f"({len(reasons)} searches; last: {reasons[-1] if reasons else 'time out'})")
+              f"({stop}; last: {reasons[-1] if reasons else 'none run'})")
     return (failed_identification(n, "lost_in_space", reason, n_patterns=n_patterns,
                                   n_candidates=n_candidates, time_s=time.perf_counter() - t0),
             None, None, runs)
