@@ -44,6 +44,6 @@ class StopOnSignals:
         return self.event
 
     def __exit__(self, *exc) -> None:
-        for sig, old in self._old.items():
-            signal.signal(sig, old)
+        for sig, old in self._old.items():   # None: a handler not set from Python
+            signal.signal(sig, signal.SIG_DFL if old is None else old)
         self._old.clear()

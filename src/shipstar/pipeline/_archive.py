@@ -574,8 +574,8 @@ def connect(scheduler: str | None = None, *, workers: int = 2, threads_per_worke
                                 f"({_one_line(exc)})") from None
     # the workers ignore Ctrl-C (sent to the whole process group at a terminal): this process
     # stops them after writing what was finished
-    old = signal.signal(signal.SIGINT, signal.SIG_IGN) if threading.current_thread() is threading.main_thread() \
-        else None
+    main = threading.current_thread() is threading.main_thread()
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
     try:
         method = start_method or local_start_method()
         with one_blas_thread_for_children(), dask.config.set(QUIET_DASK), \
@@ -588,6 +588,6 @@ def connect(scheduler: str | None = None, *, workers: int = 2, threads_per_worke
                                    processes=True, dashboard_address=None, silence_logs=logging.CRITICAL,
                                    host="127.0.0.1", scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
     finally:
-        if old is not None:
-            signal.signal(signal.SIGINT, old)
+        if main:        # None: a handler not set from Python, which cannot be put back
+            signal.signal(signal.SIGINT, signal.SIG_DFL if old is None else old)
     return Client(cluster, set_as_default=False), cluster
