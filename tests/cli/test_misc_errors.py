@@ -62,7 +62,7 @@ def test_measure_reads_gzipped_frames(sea, tmp_path):
     """One set of extensions for every command: .fits.gz frames measure as .fits do."""
     (tmp_path / "A1").mkdir()
     for p in sorted((sea / "sea" / "A1").glob("*.fits")):
-        with open(p, "rb") as src, gzip.open(tmp_path / "A1" / (p.name + ".gz"), "wb") as dst:
+        with open(p, "rb") as src, gzip.open(tmp_path / "A1" / (p.name + ".gz"), "wb", compresslevel=1) as dst:
             shutil.copyfileobj(src, dst)
     proc = _shipstar(["measure", "--sensor", f"A1={tmp_path / 'A1'}", "--install", str(sea / "A1.toml"),
                       "--track", str(sea / "sea" / "track.csv"), "--weather", str(sea / "sea" / "weather.csv"),
