@@ -182,7 +182,7 @@ class NoiseModel:
         use, w = _clip_and_weights(z, X, fit[0], SHAPE_CLIP)
         if np.count_nonzero(use) < self.min_stars:
             return None
-        fit = _fit_shape_floor(*_normal_equations(zz[use], X[use], w[use]))
+        fit = _fit_shape_floor(*_normal_equations(zz, X, np.where(use, w, 0.0)))
         if fit is None:
             return None
         theta, sigma_f2 = fit
@@ -193,22 +193,26 @@ class NoiseModel:
 def _clip_and_weights(z, X, theta, clip: float):
     """``(use (n,) bool, w (n,))``: the stars within ``clip`` sigma under the model
     ``theta`` and their weights ``1 / (tr V / 2)^2``, ``V = X theta``."""
-    V = X @ theta                                            # (n, 3): E[z z^T] under theta
-    det = V[:, 0] * V[:, 2] - V[:, 1] ** 2
+    V = (X.reshape(-1, 4) @ theta).reshape(-1, 3)            # (n, 3): E[z z^T] under theta
+    v0, v1, v2 = V[:, 0], V[:, 1], V[:, 2]
+    z0, z1 = z[:, 0], z[:, 1]
+    det = v0 * v2 - v1 * v1
     good = det > 0.0
-    chi2 = np.full(len(z), np.inf)
-    chi2[good] = (z[good, 0] ** 2 * V[good, 2] - 2.0 * z[good, 0] * z[good, 1] * V[good, 1]
-                  + z[good, 1] ** 2 * V[good, 0]) / det[good]
-    w = np.zeros(len(z))
-    w[good] = 4.0 / (V[good, 0] + V[good, 2]) ** 2
-    return chi2 < clip ** 2, w
+    # one pass over all stars (no boolean-indexed copies: this runs twice a frame); a star
+    # whose V is not positive definite gets chi2 = inf (not used) and weight 0
+    chi2 = np.divide(z0 * z0 * v2 - 2.0 * z0 * z1 * v1 + z1 * z1 * v0, det,
+                     out=np.full(len(z), np.inf), where=good)
+    tr = v0 + v2
+    w = np.divide(4.0, tr * tr, out=np.zeros(len(z)), where=good)
+    return chi2 < clip * clip, w
 
 
 def _normal_equations(zz, X, w):
     """``(A (4, 4), b (4,))`` of the weighted least squares ``zz (n, 3) = X (n, 3, 4) theta``,
-    the off-diagonal row counted twice."""
-    Xw = X * (w[:, None, None] * _ROW_WEIGHTS[None, :, None])
-    return Xw.reshape(-1, 4).T @ X.reshape(-1, 4), Xw.reshape(-1, 4).T @ zz.reshape(-1)
+    the off-diagonal row counted twice (a star of weight 0 adds nothing)."""
+    Xr = X.reshape(-1, 4)
+    XtW = Xr.T * (w[:, None] * _ROW_WEIGHTS[None, :]).reshape(-1)
+    return XtW @ Xr, XtW @ zz.reshape(-1)
 
 
 def _fit_shape_floor(A, b):
@@ -228,7 +232,12 @@ def _fit_shape_floor(A, b):
     if not np.all(np.isfinite(theta)):
         return None
     # an S that is not positive definite (few stars) has its eigenvalues raised to _MIN_SHAPE
-    lam, vec = np.linalg.eigh(np.array([[theta[0], theta[1]], [theta[1], theta[2]]]))
+    # (the smaller eigenvalue in closed form first: eigh only in that rare case)
+    half_tr, half_diff = 0.5 * (theta[0] + theta[2]), 0.5 * (theta[0] - theta[2])
+    if half_tr - math.sqrt(half_diff * half_diff + theta[1] * theta[1]) < _MIN_SHAPE * (1.0 + 1e-9):
+        lam, vec = np.linalg.eigh(np.array([[theta[0], theta[1]], [theta[1], theta[2]]]))
+    else:
+        lam = (_MIN_SHAPE,)                                  # not raised: theta unchanged
     if lam[0] < _MIN_SHAPE:
         S = (vec * np.maximum(lam, _MIN_SHAPE)) @ vec.T
         theta = np.array([S[0, 0], S[0, 1], S[1, 1], theta[3]])
