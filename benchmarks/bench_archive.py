@@ -17,8 +17,9 @@ process loaded) and the processing time once it is up (``wall.process_s``), and 
 time of the command with its worker processes (``getrusage`` of the children: the same
 CPU in every configuration means the difference in wall time is parallelism, not
 overhead).  Then the medians over ``--repeat`` and the ratios: 2 against 1 archive workers
-(target >= 1.8x on this 2-core machine), serial measure against 2 archive workers, and
-whether every CSV is byte-identical to serial measure's (md5; the code must not change
+(target >= 1.8x on this 2-core machine; also the median of each repeat's own pair, run
+back to back: the robust figure when the host's speed drifts), serial measure against 2
+archive workers, and whether every CSV is byte-identical to serial measure's (md5; the code must not change
 while the benchmark runs).
 
 The host is shared: the load average is printed before and after; take the medians.
@@ -128,6 +129,12 @@ def main(argv=None) -> int:
         print(f"  {labels[k]:34s} {w:7.1f} s   {p:7.1f} s   {c:7.1f} s")
     print(f"speed-up 2 vs 1 archive workers: {med['dask1'][0] / med['dask2'][0]:.2f}x whole command, "
           f"{med['dask1'][1] / med['dask2'][1]:.2f}x processing (target >= 1.8x)")
+    # the medians above may come from different repeats; each repeat's own pair ran back to
+    # back (the host's speed drifts): the median of the pairs is the robust figure
+    pairs_w = [x1["wall_s"] / x2["wall_s"] for x1, x2 in zip(runs["dask1"], runs["dask2"])]
+    pairs_p = [x1["process_s"] / x2["process_s"] for x1, x2 in zip(runs["dask1"], runs["dask2"])]
+    print(f"median of the {len(pairs_w)} pairs: {statistics.median(pairs_w):.2f}x whole command "
+          f"({', '.join(f'{x:.2f}' for x in pairs_w)}), {statistics.median(pairs_p):.2f}x processing")
     print(f"serial measure / archive 2 workers: {med['serial'][0] / med['dask2'][0]:.2f}x whole command; "
           f"archive 1 worker / serial measure: {med['dask1'][0] / med['serial'][0]:.2f}x")
     if "pool2" in med and runs["pool2"]:
