@@ -244,8 +244,8 @@ def test_persistent_pixels_are_found_while_the_stars_move():
     hot = np.array([[100.0, 200.0], [500.0, 600.0]])
     pp = PersistentPixels()
 
-    def shift(then, now, xy):                  # tokens: the field's offset along x (px)
-        return np.full(len(xy), abs(now - then))
+    def shift(then, index, now, xy):           # tokens: the field's offset along x (px)
+        return np.abs(now - np.asarray(then, float)[index])
 
     rng = np.random.default_rng(0)
     stars = rng.uniform(0, 1000, (40, 2))

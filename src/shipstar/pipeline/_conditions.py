@@ -412,9 +412,12 @@ class ConditionMonitor:
         theta = None if shape is None else np.array([shape[0][0], shape[0][1], shape[1][1], floor_used_px ** 2])
         self.noise_model.add(z[good], X[good], t_s, theta)
 
-    def _displacement_px(self, C_then, C_now, xy_px) -> np.ndarray:
-        """How far (px) a star now at ``xy_px`` was from there with the attitude ``C_then``."""
+    def _displacement_px(self, C_then, index, C_now, xy_px) -> np.ndarray:
+        """``(M,)``: how far (px) a star now at ``xy_px[m]`` (M, 2) was from there with the
+        attitude ``C_then[index[m]]`` (a list of (3, 3) J2000 attitudes), the attitude now
+        ``C_now``: one batched projection for every pair of the frame."""
         cam = self.camera
-        w = cam.unproject(xy_px)
-        then = cam.project(w @ (np.asarray(C_now).T @ np.asarray(C_then)))
+        w = cam.unproject(xy_px)                                         # (M, 3) sensor
+        C_now_from_then = np.asarray(C_now).T @ np.asarray(C_then, float)   # (U, 3, 3)
+        then = cam.project(np.einsum("mi,mij->mj", w, C_now_from_then[index]))
         return np.hypot(*(then - xy_px).T)
