@@ -115,6 +115,20 @@ def test_small_sessions_do_not_reject_good_frames():
             assert robust_mean_rotation(C)[1].all()
 
 
+def test_mad_threshold_is_the_student_t_quantile_at_the_gaussian_tail():
+    """Against scipy.stats (the module shipstar no longer imports for it): Student-t with
+    0.3675 (n - 1) dof (the MAD's efficiency) at the tail of k Gaussian sigmas; the docstring's figures."""
+    from scipy import stats
+
+    from shipstar.calibrate._installation_mean import mad_threshold_k
+
+    for k in (3.0, 5.0):
+        for n in (2, 4, 20, 40, 160, 1000):
+            ref = stats.t.isf(stats.norm.sf(k), 0.3675 * (n - 1))
+            assert mad_threshold_k(k, n) == pytest.approx(ref, rel=1e-12)
+    assert [round(mad_threshold_k(5.0, n), 1) for n in (160, 40, 20)] == [5.6, 8.5, 17.2]
+
+
 def test_calibration_reproduces_injected_scatter():
     """Frames scattered like seed 000 Tab. 2 (9.18'', 5.89'', 63.55''): std and mean come back."""
     rng = np.random.default_rng(8)
