@@ -222,8 +222,8 @@ def solve_bands(xy_px, width_px: int, height_px: int, hyps, *, centroid_error_px
     fields = {}
     reasons = []
     n_patterns = n_candidates = 0
-    t_db = 0.0                  # loading (or, on a cold cache, building) a band's database
-    timed_out = False           # is not search time: it does not count against max_time_s
+    t_db = 0.0          # loading the band databases (on a cold cache, building them): not
+    timed_out = False   # search time, so not counted against max_time_s
     for k_stars in passes:
         for hyp in hyps:
             left = max_time_s - (time.perf_counter() - t0 - t_db)
