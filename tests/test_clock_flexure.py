@@ -165,6 +165,13 @@ def test_smoother_applies_the_clock_offset_to_the_first_epochs(clock):
     assert np.all(np.sqrt(np.nanmean(err_s ** 2, axis=0)) < 1.0)
     # the summary's estimate is the estimator's own, as without smoothing
     assert session_summary(smooth, truth)["time_offsets_s"] == session_summary(causal, truth)["time_offsets_s"]
+    # and A2's single rows are at their true times from the first frame on, as the fusion
+    from shipstar.pipeline import attitude_csv_text
+    from shipstar.pipeline._output import CLOCK_OFFSET_SUFFIX
+
+    rows = [r for r in csv.DictReader(line for line in io.StringIO(attitude_csv_text(smooth))
+                                      if not line.startswith("#")) if r["method"] == "single"]
+    assert all(r["time_source"].endswith(CLOCK_OFFSET_SUFFIX) == (r["sensor"] == "A2") for r in rows)
 
 
 def test_smoother_monitor_and_joint_from_the_first_epoch(flexure):
@@ -268,3 +275,42 @@ def test_the_applied_clock_offsets_uncertainty_travels_with_the_installation():
                                   without[1].installation.C_deck_from_sensor)
     sigma_arcsec = math.sqrt(float(omega @ clock_term @ omega) / float(omega @ omega)) / ASEC2RAD   # along omega
     assert sigma_arcsec == pytest.approx(math.sqrt(tr.cov[9, 9]) * 1e-3 * np.linalg.norm(omega) / ASEC2RAD)
+
+
+def test_single_rows_of_a_sensor_with_an_applied_clock_offset_are_at_the_true_time(clock):
+    """Once A2's clock offset is applied, A2's single-sensor CSV rows are stamped with the
+    true exposure time (header + offset) and say so; their attitudes, which are of that
+    time, then agree with the truth at it (at the header time they were off by the deck's
+    rotation in 3 ms, up to ~40'')."""
+    from shipstar.pipeline import attitude_csv_text
+    from shipstar.pipeline._output import CLOCK_OFFSET_SUFFIX
+
+    spec, res, _ = clock
+    j1, j2 = res.start_utc_jd
+    header_t_s = {fr.label: ((fr.utc_jd1 - j1) + (fr.utc_jd2 - j2)) * 86400.0 for fr in res.frames_of("A2")}
+    applied_s = [e.mounts.time_offsets_s["A2"]["offset_s"] for e in res.epochs
+                 if e.mounts.time_offsets_s["A2"]["applied"]]
+    rows = list(csv.DictReader(line for line in io.StringIO(attitude_csv_text(res)) if not line.startswith("#")))
+    singles = {s: [r for r in rows if r["method"] == "single" and r["sensor"] == s and r["solved"] == "1"]
+               for s in ("A1", "A2")}
+    assert not any(r["time_source"].endswith(CLOCK_OFFSET_SUFFIX) for r in singles["A1"])
+    shifted = [r for r in singles["A2"] if r["time_source"].endswith(CLOCK_OFFSET_SUFFIX)]
+    assert len(shifted) > 0.5 * len(singles["A2"])
+    shifts = np.array([float(r["t_s"]) - header_t_s[r["frame"]] for r in shifted])
+    assert np.all((shifts > min(applied_s) - 1e-6) & (shifts < max(applied_s) + 1e-6))   # the offset then
+    assert np.median(shifts) == pytest.approx(0.003, abs=3e-4)
+
+    def rms_err_arcsec(rs, t_s):
+        K, psi, theta = spec.motion.angles_rad(np.asarray(t_s, float))
+        est = np.radians([[float(r[c]) for c in ("heading_deg", "pitch_deg", "roll_deg")] for r in rs])
+        err = np.angle(np.exp(1j * (est - np.stack([K, psi, theta], axis=1)))) * RAD2ASEC
+        return np.sqrt(np.mean(err ** 2, axis=0))
+
+    t_row = [float(r["t_s"]) for r in shifted]
+    at_row = rms_err_arcsec(shifted, t_row)
+    at_header = rms_err_arcsec(shifted, [header_t_s[r["frame"]] for r in shifted])
+    # (A2's own heading error stays: the ship's heading hardly turns in 3 ms; pitch and roll do)
+    assert np.hypot.reduce(at_header) > 15.0 and np.hypot.reduce(at_row) < 0.3 * np.hypot.reduce(at_header), \
+        (at_row, at_header)
+    a1 = rms_err_arcsec(singles["A1"], [float(r["t_s"]) for r in singles["A1"]])
+    assert np.all(a1 < 10.0), a1                                     # the time origin is the truth's

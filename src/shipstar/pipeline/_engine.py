@@ -75,11 +75,23 @@ class Emission:
         sensor has ended, and for a frame refused for its time.
     warnings : tuple of str
         Warnings that arose with these frames (one line each).
+    frame_shifts_s : tuple of float
+        Per frame, the clock offset (s) applied to its time when it came (true exposure
+        time minus header time; ``pipeline._mounts``); empty when none was applied to any.
+        Its single-sensor row is stamped with the corrected time.
     """
 
     frames: tuple
     epoch: object
     warnings: tuple = ()
+    frame_shifts_s: tuple = ()
+
+
+def _shifts(engine, rows) -> tuple:
+    """The clock offsets applied to ``rows`` ``(t_s as corrected, sensor, frame)``: empty
+    when none was."""
+    shifts = tuple(t - engine.t_s(fr) for t, _, fr in rows)
+    return shifts if any(abs(x) > _EPS_S for x in shifts) else ()
 
 
 class SessionEngine:
@@ -163,7 +175,8 @@ class SessionEngine:
             from shipstar.ship import ShipAttitude
 
             bad = replace(fr, solved=False, reason=reason, ship=ShipAttitude.failed(reason, "single"))
-            refused = Emission((bad,), None, (f"sensor {fr.sensor}: frame {fr.label}: {reason}",))
+            refused = Emission((bad,), None, (f"sensor {fr.sensor}: frame {fr.label}: {reason}",),
+                               _shifts(self, [(t, s, fr)]))
             if self._held:                               # after the held epochs: rows in time order
                 self._held.append((self._held[-1][0], refused, None))
                 return []
@@ -234,7 +247,8 @@ class SessionEngine:
                         self._queue[s].clear()
                     out.extend(self._release(math.inf))
                     if rest or self._warnings:
-                        out.append(Emission(tuple(fr for _, _, fr in rest), None, self._take_warnings()))
+                        out.append(Emission(tuple(fr for _, _, fr in rest), None, self._take_warnings(),
+                                            _shifts(self, rest)))
                 break
             t_k = R[0][0]
             if not all(self._closed[s] or (self._queue[s] and self._queue[s][-1][0] >= t_k - _EPS_S)
@@ -275,6 +289,11 @@ class SessionEngine:
             retimed = fit is not None
             if retimed:
                 offsets = [o + c for o, c in zip(offsets, changes)]
+                # and the single rows of the held frames at their true times, as the fusion
+                frame_shifts = tuple(0.0 if self._index(fr.sensor) == self.reference
+                                     else self._mounts.shift_s(self._index(fr.sensor)) for fr in emission.frames)
+                emission = replace(emission, frame_shifts_s=frame_shifts
+                                   if any(abs(x) > _EPS_S for x in frame_shifts) else ())
         configs = self._mounts.configs_for(fr_ref, None if fit is None else fit.omega_at(t_k))
         if retimed or any(is_flexed(c) for c in (*configs, *configs_then)):
             epoch = fuse_epoch(epoch.index, t_k, self.start_utc_jd, configs, paired, offsets,
@@ -328,7 +347,7 @@ class SessionEngine:
         self.n_epochs += 1
         self._motion.prune(t_k - self.smooth_lag_s)     # the held epochs' deck motion stays
         rows.sort(key=lambda r: (r[0], r[1]))
-        emission = Emission(tuple(fr for _, _, fr in rows), epoch, self._take_warnings())
+        emission = Emission(tuple(fr for _, _, fr in rows), epoch, self._take_warnings(), _shifts(self, rows))
         if self.smooth_lag_s <= 0.0:
             return [emission]
         self._held.append((t_k, emission, (t_k, paired, offsets, motion, fit, shifts, configs, vf)))

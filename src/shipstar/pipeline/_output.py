@@ -22,7 +22,7 @@ import math
 import os
 from pathlib import Path
 
-from shipstar.units import RAD2ASEC, RAD2DEG
+from shipstar.units import DAY_S, RAD2ASEC, RAD2DEG
 
 __all__ = ["ATTITUDE_COLUMNS", "attitude_csv_text", "write_attitude_csv", "emission_rows", "AttitudeCsvWriter",
            "PARTIAL_SUFFIX", "comment_lines"]
@@ -30,6 +30,9 @@ __all__ = ["ATTITUDE_COLUMNS", "attitude_csv_text", "write_attitude_csv", "emiss
 ATTITUDE_COLUMNS = ("time_utc", "t_s", "method", "sensor", "frame", "solved", "heading_deg", "pitch_deg", "roll_deg",
                     "sigma_heading_arcsec", "sigma_pitch_arcsec", "sigma_roll_arcsec", "n_stars", "rms_arcsec",
                     "reason", "time_source", "integrity", "integrity_chi2", "suspect_sensor")
+#: Appended to a single row's ``time_source`` when its sensor's estimated clock offset was
+#: applied to its time (the row is then at the true exposure time, not the header's).
+CLOCK_OFFSET_SUFFIX = "+clock-offset"
 #: A session's CSV is ``OUT + PARTIAL_SUFFIX`` until it is complete.
 PARTIAL_SUFFIX = ".partial"
 
@@ -68,10 +71,14 @@ def emission_rows(emission, sensors, start_utc_jd) -> list:
     """
     j1, j2 = start_utc_jd
     rows = []
-    for fr in emission.frames:
-        t = ((fr.utc_jd1 - j1) + (fr.utc_jd2 - j2)) * 86400.0
-        rows.append(_row(_iso(fr.utc_jd1, fr.utc_jd2), t, "single", fr.sensor, fr.label, fr.ship, fr.rms_arcsec,
-                         fr.time_source))
+    shifts = emission.frame_shifts_s or (0.0,) * len(emission.frames)
+    for fr, shift_s in zip(emission.frames, shifts):
+        # a sensor whose clock offset is applied: its row at the true exposure time (the
+        # header's plus the offset), which its attitude is of; time_source says so
+        jd2 = fr.utc_jd2 + shift_s / DAY_S if shift_s else fr.utc_jd2
+        t = ((fr.utc_jd1 - j1) + (jd2 - j2)) * 86400.0
+        source = f"{fr.time_source}{CLOCK_OFFSET_SUFFIX}" if shift_s else fr.time_source
+        rows.append(_row(_iso(fr.utc_jd1, jd2), t, "single", fr.sensor, fr.label, fr.ship, fr.rms_arcsec, source))
     e = emission.epoch
     if e is not None and len(sensors) > 1:
         both = "+".join(sensors)
