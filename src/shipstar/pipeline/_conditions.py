@@ -236,11 +236,9 @@ def _fit_shape_floor(A, b):
     half_tr, half_diff = 0.5 * (theta[0] + theta[2]), 0.5 * (theta[0] - theta[2])
     if half_tr - math.sqrt(half_diff * half_diff + theta[1] * theta[1]) < _MIN_SHAPE * (1.0 + 1e-9):
         lam, vec = np.linalg.eigh(np.array([[theta[0], theta[1]], [theta[1], theta[2]]]))
-    else:
-        lam = (_MIN_SHAPE,)                                  # not raised: theta unchanged
-    if lam[0] < _MIN_SHAPE:
-        S = (vec * np.maximum(lam, _MIN_SHAPE)) @ vec.T
-        theta = np.array([S[0, 0], S[0, 1], S[1, 1], theta[3]])
+        if lam[0] < _MIN_SHAPE:
+            S = (vec * np.maximum(lam, _MIN_SHAPE)) @ vec.T
+            theta = np.array([S[0, 0], S[0, 1], S[1, 1], theta[3]])
     return theta, sigma_f2
 
 

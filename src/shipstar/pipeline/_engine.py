@@ -87,11 +87,15 @@ class Emission:
     frame_shifts_s: tuple = ()
 
 
-def _shifts(engine, rows) -> tuple:
-    """The clock offsets applied to ``rows`` ``(t_s as corrected, sensor, frame)``: empty
-    when none was."""
-    shifts = tuple(t - engine.t_s(fr) for t, _, fr in rows)
+def _applied(shifts) -> tuple:
+    """``Emission.frame_shifts_s`` of per-frame clock offsets (s): empty when none was applied."""
+    shifts = tuple(shifts)
     return shifts if any(abs(x) > _EPS_S for x in shifts) else ()
+
+
+def _shifts(engine, rows) -> tuple:
+    """The clock offsets applied to ``rows`` ``(t_s as corrected, sensor, frame)``."""
+    return _applied(t - engine.t_s(fr) for t, _, fr in rows)
 
 
 class SessionEngine:
@@ -290,10 +294,9 @@ class SessionEngine:
             if retimed:
                 offsets = [o + c for o, c in zip(offsets, changes)]
                 # and the single rows of the held frames at their true times, as the fusion
-                frame_shifts = tuple(0.0 if self._index(fr.sensor) == self.reference
-                                     else self._mounts.shift_s(self._index(fr.sensor)) for fr in emission.frames)
-                emission = replace(emission, frame_shifts_s=frame_shifts
-                                   if any(abs(x) > _EPS_S for x in frame_shifts) else ())
+                emission = replace(emission, frame_shifts_s=_applied(
+                    0.0 if self._index(fr.sensor) == self.reference else self._mounts.shift_s(self._index(fr.sensor))
+                    for fr in emission.frames))
         configs = self._mounts.configs_for(fr_ref, None if fit is None else fit.omega_at(t_k))
         if retimed or any(is_flexed(c) for c in (*configs, *configs_then)):
             epoch = fuse_epoch(epoch.index, t_k, self.start_utc_jd, configs, paired, offsets,
