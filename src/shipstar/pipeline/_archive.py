@@ -177,12 +177,9 @@ def _chunk_task(job, sensor: int, piece, lo: int, keep_from: int, run_id: str, k
 
 def _warm(cameras) -> None:
     """Load the catalog and each camera's star database into this worker (cached per process)."""
-    from shipstar.pipeline._sensor import _database_for
-    from shipstar.pipeline._stars import default_lookup
+    from shipstar.pipeline._measure import load_shared_data
 
-    default_lookup()
-    for camera in cameras:
-        _database_for(camera)
+    load_shared_data(cameras)
 
 
 def warm_workers(client, cameras) -> list:

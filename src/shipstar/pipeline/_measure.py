@@ -146,15 +146,21 @@ def _init_worker(job: MeasureJob, queue) -> None:
     stops the workers)."""
     import signal
 
-    from shipstar.pipeline._sensor import _database_for
-    from shipstar.pipeline._stars import default_lookup
-
     global _JOB, _QUEUE
     _JOB, _QUEUE = job, queue
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    load_shared_data(config.camera for config in job.configs)
+
+
+def load_shared_data(cameras) -> None:
+    """Load the catalog and each camera's star database into this process (cached per
+    process): what a worker does before its first frame (this pool's, a Dask worker's)."""
+    from shipstar.pipeline._sensor import _database_for
+    from shipstar.pipeline._stars import default_lookup
+
     default_lookup()
-    for config in job.configs:
-        _database_for(config.camera)
+    for camera in cameras:
+        _database_for(camera)
 
 
 #: Results a worker sends at a time (frames of one sensor): the main process merges and
