@@ -9,9 +9,15 @@ from setuptools import Extension, setup
 
 _CFLAGS = ["-O3", "-std=c99", "-fno-math-errno", "-Wall"]
 
+#: QUEST in C, included by the identification and attitude kernels
+_QUEST_H = ["src/shipstar/_cquest.h"]
+
 EXTENSIONS = [
     Extension("shipstar.extract._ckernels", ["src/shipstar/extract/_ckernels.c"], extra_compile_args=_CFLAGS),
-    Extension("shipstar.identify._ckernels", ["src/shipstar/identify/_ckernels.c"], extra_compile_args=_CFLAGS),
+    Extension("shipstar.identify._ckernels", ["src/shipstar/identify/_ckernels.c"], extra_compile_args=_CFLAGS,
+              depends=_QUEST_H),
+    Extension("shipstar.attitude._ckernels", ["src/shipstar/attitude/_ckernels.c"], extra_compile_args=_CFLAGS,
+              depends=_QUEST_H),
 ]
 
 setup(ext_modules=EXTENSIONS)

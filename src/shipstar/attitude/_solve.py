@@ -289,6 +289,61 @@ def solve_attitude(w_body, v_ref, *, weights=None, sigma_rad=None, method="quest
     v = np.asarray(v_ref, dtype=float)
     a, sigma = _check_args(w, v, weights, sigma_rad, method, k_sigma, max_residual_arcsec,
                            min_vectors)
+    if method == "quest" and _COMPILED[0]:
+        sol = _solve_compiled(w, v, a, sigma, info_per_rad2, weights is not None, reject_outliers,
+                              max_residual_arcsec, k_sigma, min_vectors)
+        if sol is not None:
+            return sol
+    return _solve_python(w, v, a, sigma, info_per_rad2, weights is not None, method, reject_outliers,
+                         max_residual_arcsec, k_sigma, min_vectors)
+
+
+#: ``[True]``: solve_attitude's QUEST path runs compiled (:mod:`._ckernels`); the tests set
+#: it False to run the Python path, the reference the compiled one is checked against.
+_COMPILED = [True]
+_F64 = np.dtype(np.float64)
+
+
+def _solve_compiled(w, v, a, sigma, info_per_rad2, weights_given, reject_outliers, max_residual_arcsec,
+                    k_sigma, min_vectors):
+    """:func:`solve_attitude` by the compiled kernel, or None where the Python path must
+    decide (every failure, singular information): the same steps, results equal to
+    rounding."""
+    from shipstar.attitude import _ckernels
+
+    n = len(w)
+    W = None
+    if info_per_rad2 is not None:
+        W = np.ascontiguousarray(info_per_rad2, dtype=_F64)
+        if W.shape != (n, 3, 3):
+            return None                                  # the Python path words the error
+    f64 = np.ascontiguousarray
+    wu, vu, C, r, P, work = np.empty((n, 3)), np.empty((n, 3)), np.empty((3, 3)), np.empty(n), np.empty((3, 3)), \
+        np.empty(n)
+    active = np.empty(n, dtype=np.bool_)
+    Ws, sig = (np.empty((n, 3, 3)), np.empty(n)) if W is not None else (_NO_INFO, _NO_SIGMA)
+    max_res = 0.0 if max_residual_arcsec is None else float(max_residual_arcsec) * ASEC2RAD
+    status, scale, rms_rad = _ckernels.solve(
+        f64(w, dtype=_F64), f64(v, dtype=_F64), f64(a, dtype=_F64),
+        _NO_SIGMA if sigma is None else f64(sigma, dtype=_F64), _NO_INFO if W is None else W,
+        np.array([float(k_sigma), max_res]), np.array([int(min_vectors), int(bool(reject_outliers))], dtype=np.int64),
+        wu, vu, C, r, active.view(np.uint8), P, Ws, sig, work)
+    if status != 0:
+        return None
+    if W is None:
+        return _solution(C, r, active, a, sigma, wu, weights_given)
+    info_used = Ws / scale if scale > 0 else np.full_like(Ws, np.inf)
+    return AttitudeSolution(True, "", C, q_wxyz_from_matrix(C), P, rms_rad * RAD2ASEC, r * RAD2ASEC, active,
+                            int(np.count_nonzero(active)), sig, info_used)
+
+
+_NO_SIGMA = np.empty(0)
+_NO_INFO = np.empty(0)
+
+
+def _solve_python(w, v, a, sigma, info_per_rad2, weights_given, method, reject_outliers, max_residual_arcsec,
+                  k_sigma, min_vectors):
+    """:func:`solve_attitude` in Python (every method; the failures' reasons)."""
     n = len(w)
     info = _check_info(info_per_rad2, n)
     bad = _bad_rows(w, v)
@@ -325,7 +380,7 @@ def solve_attitude(w_body, v_ref, *, weights=None, sigma_rad=None, method="quest
         sol = _solution_anisotropic(C, w, v, active, a, sigma, info)
         if sol is not None:
             return sol
-    return _solution(C, r, active, a, sigma, w, weights is not None)
+    return _solution(C, r, active, a, sigma, w, weights_given)
 
 
 def t_factor(m: int) -> float:
