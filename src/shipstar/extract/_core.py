@@ -141,9 +141,11 @@ def extract_stars(image, *, threshold_sigma=5.0, max_stars=None, refine="gaussia
         Image motion of the stars during the exposure (end minus start, px; the sign
         does not matter), e.g. from the sensor's angular rate. Given and at least
         ``STREAK_MIN_PX`` (1.5 px) long, stars are detected with a line filter along it
-        and fitted with the smeared PSF; their positions are the streaks' midpoints
-        (mid-exposure for a constant rate). With ``psf_sigma_px`` and ``gain_e_per_adu``
-        too, the fastest way (~40 % faster than estimating the smear). Not given, the smear is estimated from the
+        and fitted with the smeared PSF, the common smear measured again by free-smear
+        fits of the brightest streaks found (used when 3 of them agree); their positions
+        are the streaks' midpoints (mid-exposure for a constant rate). With
+        ``psf_sigma_px`` and ``gain_e_per_adu`` too, the fastest way (no point-source
+        pass over the frame). Not given, the smear is estimated from the
         brightest objects (second moments, then fits), and the same is done when it is
         3 px or longer and the fits agree on it (``smear_px`` of the result).
 
@@ -174,7 +176,7 @@ def extract_stars(image, *, threshold_sigma=5.0, max_stars=None, refine="gaussia
         from shipstar.extract._smeared import extract_smeared   # (not loaded for point sources)
 
         res, sigma = extract_smeared(arr, mesh, None, hint, sigma_given, inv_gain, saturation,
-                                     float(threshold_sigma), refine)
+                                     float(threshold_sigma), refine, refine_smear=True)
         return _result(res, mesh, sigma, arr.shape, max_stars, hint)
     peaks, labels_of_peaks, idx, labels = detect_objects(arr, mesh, float(threshold_sigma))
     stats = component_stats(arr, mesh, idx, labels, labels_of_peaks, saturation)
@@ -184,7 +186,7 @@ def extract_stars(image, *, threshold_sigma=5.0, max_stars=None, refine="gaussia
         from shipstar.extract._smeared import extract_smeared
 
         res, sigma = extract_smeared(arr, mesh, stats, smear, sigma_s, gain_s, saturation, float(threshold_sigma),
-                                     refine)
+                                     refine, refine_smear=hint is not None)
         return _result(res, mesh, sigma, arr.shape, max_stars, smear)
     res, sigma = measure_points(arr, mesh, peaks, stats, refine, psf_sigma_px, inv_gain)
     return _result(res, mesh, sigma, arr.shape, max_stars, np.zeros(2))

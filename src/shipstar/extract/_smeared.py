@@ -18,7 +18,7 @@ from shipstar.extract._fit import _spd_inverse
 from shipstar.extract._matched import LineFilter, detect_streaks
 from shipstar.extract._point import SEGMENT_SIGMA, SHARPEST_PSF_SIGMA_PX, bright_objects, too_sharp
 from shipstar.extract._result import FLAG_EDGE, FLAG_ELONGATED, FLAG_FIT_FAILED, FLAG_SATURATED
-from shipstar.extract._smear import FIELD_MIN_PX, binned_guess, calibrate, smear_field
+from shipstar.extract._smear import FIELD_MIN_PX, STREAK_MIN_PX, binned_guess, calibrate, smear_field
 from shipstar.extract._streak import (
     BG,
     DX,
@@ -90,7 +90,7 @@ def sharp_pixels(image, mesh, too_sharp, segment_sigma=SEGMENT_SIGMA):
 
 
 def measure_streaks(image, mesh, smear, *, threshold_sigma, segment_sigma, sigma, inv_gain, bad, saturated, patch=None,
-                    fit=True):
+                    fit=True, refine_smear=False):
     """Detect and fit the smeared stars of a frame.
 
     Parameters
@@ -111,6 +111,10 @@ def measure_streaks(image, mesh, smear, *, threshold_sigma, segment_sigma, sigma
         and cosmic rays (also in ``bad``).
     fit : bool
         Fit the smeared PSF (else: the centre of light of each streak's footprint).
+    refine_smear : bool
+        ``smear`` is a prediction (the caller's hint): the detection uses it, then the
+        common smear is measured by free-smear fits of the brightest streaks found
+        (:func:`_refined_smear`) and the fits use that.
 
     Returns
     -------
@@ -123,6 +127,8 @@ def measure_streaks(image, mesh, smear, *, threshold_sigma, segment_sigma, sigma
         return dict(xy=np.zeros((0, 2)), flux=np.zeros(0), peak=np.zeros(0), npix=np.zeros(0, dtype=np.int64),
                     flags=np.zeros(0, dtype=np.int64), snr=np.zeros(0), xy_cov=np.zeros((0, 2, 2)))
     col, row = det["col"], det["row"]
+    if refine_smear and fit:
+        smear = _refined_smear(image, mesh, det, smear, sigma, inv_gain, bad, saturated)
     length = float(np.hypot(*smear))
     hx, hy = streak_half_sizes(smear, sigma, _MARGIN_PX + _FIELD_FRACTION * length)
     bg, noise = mesh.at(col, row)
@@ -155,6 +161,22 @@ def measure_streaks(image, mesh, smear, *, threshold_sigma, segment_sigma, sigma
     keep = ~ok | (snr >= _FIT_SNR_FRACTION * threshold_sigma) if fit else np.ones(len(snr), dtype=bool)
     xy, flux, peak, flags, snr, xy_cov = xy[keep], flux[keep], peak[keep], flags[keep], snr[keep], xy_cov[keep]
     return dict(xy=xy, flux=flux, peak=peak, npix=det["npix"][keep], flags=flags, snr=snr, xy_cov=xy_cov)
+
+
+def _refined_smear(image, mesh, det, smear, sigma, inv_gain, bad, saturated):
+    """The common smear measured from a predicted one: free-smear fits of the brightest
+    unsaturated streaks detected with it (:func:`shipstar.extract._smear.calibrate`),
+    accepted on the evidence :func:`shipstar.extract._smear.frame_smear` asks of an
+    estimate (at least 3 fits whose smear vectors agree); else the prediction."""
+    order = np.argsort(-det["snr"], kind="stable")
+    col, row = det["col"][order], det["row"][order]
+    clean = ~saturated[row, col]
+    refined, _, _, (n_ok, spread) = calibrate(image, mesh, bad, col[clean], row[clean], smear, sigma, inv_gain,
+                                              fit_smear=True)
+    length = float(np.hypot(*refined))
+    if n_ok < 3 or not spread <= 0.2 * length + 0.5 or length < STREAK_MIN_PX:
+        return np.asarray(smear, dtype=float)
+    return refined
 
 
 def _fit_with_field(win, p0, nodes, snr, inv_gain, smear):
@@ -208,8 +230,11 @@ def _flags(foot, sat, inside, ok, det):
     return flags.astype(np.int64)
 
 
-def extract_smeared(arr, mesh, stats, smear, sigma, inv_gain, saturation, threshold_sigma, refine):
+def extract_smeared(arr, mesh, stats, smear, sigma, inv_gain, saturation, threshold_sigma, refine, refine_smear=False):
     """Centroids of a smeared frame: the dict of :func:`measure_streaks`, and the PSF sigma used.
+
+    ``refine_smear``: ``smear`` is the caller's hint, measured again from the streaks found
+    (:func:`measure_streaks`); else it was estimated from the frame already.
 
     ``sigma`` / ``inv_gain`` None: estimated on the brightest objects, from ``stats``
     (:func:`shipstar.extract._point.component_stats` of the frame's objects; sigma 1 px
@@ -240,5 +265,6 @@ def extract_smeared(arr, mesh, stats, smear, sigma, inv_gain, saturation, thresh
     bad.reshape(-1)[masked] = True
     result = measure_streaks(arr, mesh, smear, threshold_sigma=threshold_sigma, segment_sigma=segment_sigma,
                              sigma=sigma, inv_gain=inv_gain or 0.0, bad=bad, saturated=saturated,
-                             patch=(masked, mesh.at(col, row)[0]), fit=refine == "gaussian")
+                             patch=(masked, mesh.at(col, row)[0]), fit=refine == "gaussian",
+                             refine_smear=refine_smear)
     return result, sigma

@@ -50,6 +50,11 @@ __all__ = ["FrameResult", "SensorProcessor", "rank_by_flux", "extrapolate_rotati
 _NAN33 = np.full((3, 3), np.nan)
 #: Frames further apart than this (s) do not extrapolate the tracking prior.
 _MAX_PRIOR_GAP_S = 2.0
+#: The smear hint (:meth:`SensorProcessor._smear_hint_px`) is given from this long (px) ...
+SMEAR_HINT_MIN_PX = 3.0
+#: ... up to the extraction's longest (px), and from a motion fit at most this old (s).
+_MAX_SMEAR_HINT_PX = 200.0
+_MAX_SMEAR_HINT_GAP_S = 0.5
 #: Star databases by camera (``build_database`` costs ~7 ms even when memoised: it
 #: derives the magnitude limit and digests the catalog first).
 _DATABASES: dict = {}
@@ -371,6 +376,7 @@ class SensorProcessor:
         # the streak correction's motion fit: this sensor's last solved attitudes (sensor axes)
         correct = options.streak_correction and config.installation is not None
         self._motion = MotionWindow(1) if correct else None
+        self._motion_fit = None           # its last fit (the next frame's smear hint)
         # the sky's conditions: Moon/Sun masks, trails, cloud, seeing (pipeline._conditions)
         from shipstar.pipeline._conditions import ConditionMonitor
 
@@ -410,7 +416,7 @@ class SensorProcessor:
         extrapolated = len(self._history) >= 2 and t_s - self._history[-1][0] <= _MAX_PRIOR_GAP_S
         image = self.conditions.mask(image, frame, site, prior, extrapolated=extrapolated)
         ex = extract_stars(image, threshold_sigma=self.options.threshold_sigma, psf_sigma_px=cam.psf_sigma_px,
-                           gain_e_per_adu=cam.gain_e_per_adu)
+                           gain_e_per_adu=cam.gain_e_per_adu, smear_px=self._smear_hint_px(frame, t_s))
         keep = self.conditions.keep(image, ex, prior)
         order = rank_by_flux(ex.flux_adu)
         order = order[keep[order]]
@@ -427,6 +433,34 @@ class SensorProcessor:
             pd = np.isfinite(a) & np.isfinite(b) & np.isfinite(c) & (a > 0) & (c > 0) & (a * c - b * b > 0)
         cov = np.where(pd[:, None, None], cov, sig[:, None, None] ** 2 * np.eye(2))
         return ex.xy_px[order], np.hypot(sig, f), cov
+
+    def _smear_hint_px(self, frame, t_s: float):
+        """The smear (dx, dy) px the sensor's motion predicts at the image centre for this
+        frame, or None (the extraction then measures it).
+
+        From the motion fitted to this sensor's solved frames up to the last one
+        (:meth:`_streaks`), extrapolated by at most :data:`_MAX_SMEAR_HINT_GAP_S`: a star's
+        direction moves as ``du/dt = -omega x u`` during the exposure ``T``.  Given only when
+        at least :data:`SMEAR_HINT_MIN_PX` long, where the extraction would find the frame
+        smeared anyway (it treats estimated smears of 3 px or more as streaks): the hint
+        spares it the point-source pass and the smear's estimate, which are then thrown
+        away.  A hint that is somewhat off costs precision, not bias: the streak model is
+        symmetric about its centre, and for smears of 6 px or more each star's own smear is
+        fitted from it (``extract._smear.smear_field``).
+        """
+        fit = self._motion_fit
+        exposure_s = frame.exposure_s
+        if fit is None or not (math.isfinite(t_s) and math.isfinite(exposure_s) and exposure_s > 0.0) \
+                or not 0.0 <= t_s - fit.t_last_s <= _MAX_SMEAR_HINT_GAP_S:
+            return None
+        cam = self.config.camera
+        u0 = cam.unproject(np.array([[0.5 * (cam.width_px - 1), 0.5 * (cam.height_px - 1)]]))[0]
+        d = np.cross(fit.omega_at(t_s), u0) * (0.5 * exposure_s)     # u(t) = u0 - (omega x u0) t
+        ends = cam.project(np.array([u0 + d, u0 - d]))
+        smear = ends[1] - ends[0]
+        if not (np.all(np.isfinite(smear)) and SMEAR_HINT_MIN_PX <= math.hypot(*smear) <= _MAX_SMEAR_HINT_PX):
+            return None
+        return smear
 
     def _prior(self, t_s: float):
         """Predicted C_icrs_from_sensor at ``t_s`` from the last two solved frames (or None)."""
@@ -501,7 +535,7 @@ class SensorProcessor:
         self._motion.prune(t_s)
         if not (math.isfinite(fr.exposure_s) and fr.exposure_s > 0.0):
             return fr
-        fit = self._motion.fit(t_s)
+        fit = self._motion_fit = self._motion.fit(t_s)
         if fit is None:                          # the sensor's first frames: motion not known yet
             return replace(fr, streak_correction_arcsec=math.nan)
         cam = self.config.camera
