@@ -302,6 +302,9 @@ def solve_attitude(w_body, v_ref, *, weights=None, sigma_rad=None, method="quest
 #: it False to run the Python path, the reference the compiled one is checked against.
 _COMPILED = [True]
 _F64 = np.dtype(np.float64)
+#: the kernel's "not given" for sigma and the information matrices
+_NO_SIGMA = np.empty(0)
+_NO_INFO = np.empty(0)
 
 
 def _solve_compiled(w, v, a, sigma, info_per_rad2, weights_given, reject_outliers, max_residual_arcsec,
@@ -335,10 +338,6 @@ def _solve_compiled(w, v, a, sigma, info_per_rad2, weights_given, reject_outlier
     info_used = Ws / scale if scale > 0 else np.full_like(Ws, np.inf)
     return AttitudeSolution(True, "", C, q_wxyz_from_matrix(C), P, rms_rad * RAD2ASEC, r * RAD2ASEC, active,
                             int(np.count_nonzero(active)), sig, info_used)
-
-
-_NO_SIGMA = np.empty(0)
-_NO_INFO = np.empty(0)
 
 
 def _solve_python(w, v, a, sigma, info_per_rad2, weights_given, method, reject_outliers, max_residual_arcsec,

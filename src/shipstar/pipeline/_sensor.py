@@ -50,10 +50,10 @@ __all__ = ["FrameResult", "SensorProcessor", "rank_by_flux", "extrapolate_rotati
 _NAN33 = np.full((3, 3), np.nan)
 #: Frames further apart than this (s) do not extrapolate the tracking prior.
 _MAX_PRIOR_GAP_S = 2.0
-#: The smear hint (:meth:`SensorProcessor._smear_hint_px`) is given from this long (px) ...
+#: The smear hint (:meth:`SensorProcessor._smear_hint_px`) is given from this long (px)
+#: (up to the extraction's longest, ``extract._core.MAX_SMEAR_PX``) ...
 SMEAR_HINT_MIN_PX = 3.0
-#: ... up to the extraction's longest (px), and from a motion fit at most this old (s).
-_MAX_SMEAR_HINT_PX = 200.0
+#: ... from a motion fit at most this old (s).
 _MAX_SMEAR_HINT_GAP_S = 0.5
 #: Star databases by camera (``build_database`` costs ~7 ms even when memoised: it
 #: derives the magnitude limit and digests the catalog first).
@@ -377,6 +377,8 @@ class SensorProcessor:
         correct = options.streak_correction and config.installation is not None
         self._motion = MotionWindow(1) if correct else None
         self._motion_fit = None           # its last fit (the next frame's smear hint)
+        cam = config.camera                # the image centre's direction (sensor axes): the hint's star
+        self._centre_u = cam.unproject(np.array([[0.5 * (cam.width_px - 1), 0.5 * (cam.height_px - 1)]]))[0]
         # the sky's conditions: Moon/Sun masks, trails, cloud, seeing (pipeline._conditions)
         from shipstar.pipeline._conditions import ConditionMonitor
 
@@ -444,21 +446,22 @@ class SensorProcessor:
         at least :data:`SMEAR_HINT_MIN_PX` long, where the extraction would find the frame
         smeared anyway (it treats estimated smears of 3 px or more as streaks): the hint
         spares it the point-source pass and the smear's estimate, which are then thrown
-        away.  A hint that is somewhat off costs precision, not bias: the streak model is
-        symmetric about its centre, and for smears of 6 px or more each star's own smear is
-        fitted from it (``extract._smear.smear_field``).
+        away.  The extraction detects with the hint and measures the common smear again
+        from the streaks it finds (docs/extraction.md, *Smeared frames*), so a hint a few
+        per cent off costs nothing.
         """
+        from shipstar.extract._core import MAX_SMEAR_PX
+
         fit = self._motion_fit
         exposure_s = frame.exposure_s
         if fit is None or not (math.isfinite(t_s) and math.isfinite(exposure_s) and exposure_s > 0.0) \
                 or not 0.0 <= t_s - fit.t_last_s <= _MAX_SMEAR_HINT_GAP_S:
             return None
-        cam = self.config.camera
-        u0 = cam.unproject(np.array([[0.5 * (cam.width_px - 1), 0.5 * (cam.height_px - 1)]]))[0]
+        u0 = self._centre_u
         d = np.cross(fit.omega_at(t_s), u0) * (0.5 * exposure_s)     # u(t) = u0 - (omega x u0) t
-        ends = cam.project(np.array([u0 + d, u0 - d]))
+        ends = self.config.camera.project(np.array([u0 + d, u0 - d]))
         smear = ends[1] - ends[0]
-        if not (np.all(np.isfinite(smear)) and SMEAR_HINT_MIN_PX <= math.hypot(*smear) <= _MAX_SMEAR_HINT_PX):
+        if not (np.all(np.isfinite(smear)) and SMEAR_HINT_MIN_PX <= math.hypot(*smear) <= MAX_SMEAR_PX):
             return None
         return smear
 
