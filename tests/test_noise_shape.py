@@ -146,3 +146,63 @@ def test_noise_model_without_a_floor_and_after_cloud():
     assert np.sqrt(f2) == pytest.approx(0.05, rel=0.4)
     # beyond the model's reach (4 s) nothing is left
     assert seeing.estimate(4.25 + 4.5) is None
+
+
+def test_compiled_residual_moments_and_quest_are_the_numpy_ones():
+    """``residual_moments`` runs compiled (``attitude._ckernels``): against its NumPy
+    reference (``_residual_moments_python``, the Monte Carlo test above checks that one) on
+    fields of 3 to 60 stars; and the compiled QUEST that the noise model's fit uses against
+    ``attitude.quest``.  A singular fit (no weight) is None from both."""
+    from shipstar.attitude import _ckernels
+    from shipstar.pipeline._conditions import _residual_moments_python
+
+    rng = np.random.default_rng(23)
+    cam = camera_preset("A2")
+    for n in (3, 8, 25, 60):
+        xy, cov = _field(rng, n, cam)
+        w = cam.unproject(xy)
+        _, W, G = direction_info(cam, xy, cov, None, w)
+        wts = rng.uniform(0.1, 10.0, n)
+        X, ref = residual_moments(w, wts, W, G), _residual_moments_python(w, wts, W, G)
+        assert X.shape == (n, 3, 4)
+        np.testing.assert_allclose(X, ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
+        v = w @ np.linalg.qr(rng.normal(size=(3, 3)))[0].T
+        C = np.empty((3, 3))
+        _ckernels.quest(np.ascontiguousarray(w * 2.0), np.ascontiguousarray(v), wts, C)
+        np.testing.assert_allclose(C, quest(w, v, wts), rtol=0, atol=1e-12)
+    no_weight = np.zeros(4)                               # F = 0: singular, no fit
+    assert residual_moments(w[:4], no_weight, W[:4], G[:4]) is None
+    assert _residual_moments_python(w[:4], no_weight, W[:4], G[:4]) is None
+
+
+def test_compiled_noise_fit_is_the_numpy_one():
+    """``NoiseModel._fit`` runs compiled (``attitude._ckernels.noise_fit``): against its
+    NumPy reference ``_fit_python`` on windows of a floor and no floor (the constrained
+    ``f^2 = 0`` branch), a shape that needs its eigenvalue raised, and too few stars."""
+    rng = np.random.default_rng(29)
+    cam = camera_preset("A1")
+    cases = [(np.array([[1.3, 0.15], [0.15, 0.8]]), 0.05, 30, 12),     # shape and floor
+             (np.array([[0.9, 0.0], [0.0, 1.1]]), 0.0, 30, 12),         # no floor: f^2 <= 0 branch
+             (np.array([[0.06, 0.0], [0.0, 1.0]]), 0.0, 4, 2),          # few stars, thin shape
+             (np.array([[1.0, 0.0], [0.0, 1.0]]), 0.02, 5, 3)]          # 15 stars: < min_stars
+    branches = set()
+    for S_true, f_true, n_stars, n_frames in cases:
+        for trial in range(6):
+            model = NoiseModel(window_s=4.0, min_stars=15 if n_stars < 30 else 30)
+            for k in range(n_frames):
+                xy, cov = _field(rng, n_stars, cam)
+                z, X = _draw(rng, cam, xy, cov, S_true, f_true, 0.005)
+                model.add(z, X, 0.1 * k, None)
+            frames = list(model._frames)
+            a, b = model._fit(frames), model._fit_python(frames)
+            assert (a is None) == (b is None)
+            if b is None:
+                branches.add("none")
+                continue
+            branches.add("f2=0" if b[1] == 0.0 else "f2>0")
+            if np.linalg.eigvalsh(b[0])[0] <= 0.05 * (1 + 1e-6):
+                branches.add("raised")
+            np.testing.assert_allclose(a[0], b[0], rtol=1e-9, atol=1e-12)
+            assert a[1] == pytest.approx(b[1], rel=1e-9, abs=1e-15)
+            assert a[2] == pytest.approx(b[2], rel=1e-9)
+    assert branches == {"none", "f2=0", "f2>0", "raised"}, branches

@@ -1,4 +1,6 @@
-/* Compiled path of shipstar.attitude.solve_attitude (shipstar.attitude._ckernels).
+/* Compiled path of shipstar.attitude.solve_attitude (shipstar.attitude._ckernels), and
+ * the attitude fit's residual statistics for the pipeline's noise model (quest,
+ * residual_moments, noise_fit: pipeline/_conditions.py).
  *
  * Plain C99 on Python's buffer protocol (no NumPy headers); shipstar/attitude/_solve.py
  * is the only caller and makes every array native float64 / uint8, C ordered.
@@ -320,8 +322,281 @@ static PyObject *py_solve(PyObject *self, PyObject *args)
     return Py_BuildValue("idd", status, scale, rms_rad);
 }
 
+/* quest(w, v, a, out_C): quest() of n rows (normalised here) with weights a (sum > 0):
+ * C_ref_from_body, the same steps as shipstar.attitude._quest.quest for one problem */
+static PyObject *py_quest(PyObject *self, PyObject *args)
+{
+    Py_buffer bw, bv, ba, oC;
+    if (!PyArg_ParseTuple(args, "y*y*y*w*", &bw, &bv, &ba, &oC)) return NULL;
+    long n = (long)(bw.len / (3 * sizeof(double)));
+    const double *w = bw.buf, *v = bv.buf, *a = ba.buf;
+    double total = 0.0, b[9] = {0};
+    for (long i = 0; i < n; i++) total += a[i];
+    for (long i = 0; i < n; i++) {
+        const double *x = w + 3 * i, *y = v + 3 * i;
+        double nx = sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]);
+        double ny = sqrt(y[0] * y[0] + y[1] * y[1] + y[2] * y[2]);
+        double ai = a[i] / total;
+        for (int r = 0; r < 3; r++)
+            for (int c = 0; c < 3; c++) b[3 * r + c] += ai * (y[r] / ny) * (x[c] / nx);
+    }
+    quest_b(b, oC.buf);
+    PyBuffer_Release(&bw); PyBuffer_Release(&bv); PyBuffer_Release(&ba); PyBuffer_Release(&oC);
+    Py_RETURN_NONE;
+}
+
+/* inverse of a general 3x3 (row-major) by the adjugate; 0 when det is 0 or not finite */
+static int inv3(const double *m, double *out)
+{
+    double c00 = m[4] * m[8] - m[5] * m[7], c01 = m[5] * m[6] - m[3] * m[8], c02 = m[3] * m[7] - m[4] * m[6];
+    double det = m[0] * c00 + m[1] * c01 + m[2] * c02;
+    if (!isfinite(det) || det == 0.0) return 0;
+    double id = 1.0 / det;
+    out[0] = c00 * id; out[1] = (m[2] * m[7] - m[1] * m[8]) * id; out[2] = (m[1] * m[5] - m[2] * m[4]) * id;
+    out[3] = c01 * id; out[4] = (m[0] * m[8] - m[2] * m[6]) * id; out[5] = (m[2] * m[3] - m[0] * m[5]) * id;
+    out[6] = c02 * id; out[7] = (m[1] * m[6] - m[0] * m[7]) * id; out[8] = (m[0] * m[4] - m[1] * m[3]) * id;
+    return 1;
+}
+
+/* residual_moments(u, wts, W, G, out_X, work) -> ok: shipstar.pipeline._conditions.
+ * residual_moments (its docstring has the algebra) for n stars: u (n, 3), wts (n,),
+ * W (n, 2, 3) whitening, G (n, 2, 2) floor Gram; out_X (n, 3, 4); work 16 n doubles.
+ * 0 (nothing written) when F or a W W^T is singular: the caller's Python path decides. */
+static PyObject *py_residual_moments(PyObject *self, PyObject *args)
+{
+    Py_buffer bu, bw, bW, bG, oX, owk;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*w*w*", &bu, &bw, &bW, &bG, &oX, &owk)) return NULL;
+    long n = (long)(bw.len / sizeof(double));
+    const double *u = bu.buf, *wts = bw.buf, *Wa = bW.buf, *Ga = bG.buf;
+    double *X = oX.buf, *R = owk.buf, *Q = R + 6 * n, *RQ = Q + 6 * n;       /* (n,2,3) (n,3,2) (n,2,2) */
+    int ok = 1;
+    Py_BEGIN_ALLOW_THREADS
+    double F[9] = {0}, Fi[9];
+    for (long i = 0; i < n; i++) {                              /* F = sum w_i (I - u u^T) */
+        const double *x = u + 3 * i;
+        for (int r = 0; r < 3; r++)
+            for (int c = 0; c < 3; c++) F[3 * r + c] += wts[i] * ((r == c ? 1.0 : 0.0) - x[r] * x[c]);
+    }
+    ok = inv3(F, Fi);
+    for (long i = 0; i < n && ok; i++) {
+        const double *x = u + 3 * i, *W = Wa + 6 * i;
+        double ux[9] = {0, -x[2], x[1], x[2], 0, -x[0], -x[1], x[0], 0};
+        /* Dm = W^T (W W^T)^-1 (3, 2) */
+        double a = W[0] * W[0] + W[1] * W[1] + W[2] * W[2], b = W[0] * W[3] + W[1] * W[4] + W[2] * W[5];
+        double d = W[3] * W[3] + W[4] * W[4] + W[5] * W[5], det = a * d - b * b;
+        if (!isfinite(det) || det == 0.0) { ok = 0; break; }
+        double i00 = d / det, i01 = -b / det, i11 = a / det, Dm[6];
+        for (int r = 0; r < 3; r++) {
+            Dm[2 * r] = W[r] * i00 + W[3 + r] * i01;
+            Dm[2 * r + 1] = W[r] * i01 + W[3 + r] * i11;
+        }
+        /* R = W [u]x F^-1 (2, 3) */
+        double Wux[6], *Ri = R + 6 * i, *Qi = Q + 6 * i, *RQi = RQ + 4 * i;
+        for (int r = 0; r < 2; r++)
+            for (int c = 0; c < 3; c++)
+                Wux[3 * r + c] = W[3 * r] * ux[c] + W[3 * r + 1] * ux[3 + c] + W[3 * r + 2] * ux[6 + c];
+        for (int r = 0; r < 2; r++)
+            for (int c = 0; c < 3; c++)
+                Ri[3 * r + c] = Wux[3 * r] * Fi[c] + Wux[3 * r + 1] * Fi[3 + c] + Wux[3 * r + 2] * Fi[6 + c];
+        /* Q = w [u]x^T Dm (3, 2); RQ = R Q (2, 2) */
+        for (int r = 0; r < 3; r++)
+            for (int c = 0; c < 2; c++)
+                Qi[2 * r + c] = wts[i] * (ux[r] * Dm[c] + ux[3 + r] * Dm[2 + c] + ux[6 + r] * Dm[4 + c]);
+        for (int r = 0; r < 2; r++)
+            for (int c = 0; c < 2; c++)
+                RQi[2 * r + c] = Ri[3 * r] * Qi[c] + Ri[3 * r + 1] * Qi[2 + c] + Ri[3 * r + 2] * Qi[4 + c];
+    }
+    for (int k = 0; k < 4 && ok; k++) {            /* V: the basis E_xx, E_xy, E_yy, then G_j */
+        static const double BASIS[3][4] = {{1, 0, 0, 0}, {0, 1, 1, 0}, {0, 0, 0, 1}};
+        double M[9] = {0};                          /* sum_j Q_j V_j Q_j^T */
+        for (long j = 0; j < n; j++) {
+            const double *V = k < 3 ? BASIS[k] : Ga + 4 * j, *Qj = Q + 6 * j;
+            for (int r = 0; r < 3; r++) {
+                double qv0 = Qj[2 * r] * V[0] + Qj[2 * r + 1] * V[2], qv1 = Qj[2 * r] * V[1] + Qj[2 * r + 1] * V[3];
+                for (int c = 0; c < 3; c++) M[3 * r + c] += qv0 * Qj[2 * c] + qv1 * Qj[2 * c + 1];
+            }
+        }
+        for (long i = 0; i < n; i++) {
+            const double *V = k < 3 ? BASIS[k] : Ga + 4 * i, *Ri = R + 6 * i, *RQi = RQ + 4 * i;
+            double RQV[4], RM[6], E[4];
+            for (int r = 0; r < 2; r++)
+                for (int c = 0; c < 2; c++) RQV[2 * r + c] = RQi[2 * r] * V[c] + RQi[2 * r + 1] * V[2 + c];
+            for (int r = 0; r < 2; r++)
+                for (int c = 0; c < 3; c++)
+                    RM[3 * r + c] = Ri[3 * r] * M[c] + Ri[3 * r + 1] * M[3 + c] + Ri[3 * r + 2] * M[6 + c];
+            for (int r = 0; r < 2; r++)
+                for (int c = 0; c < 2; c++)
+                    E[2 * r + c] = V[2 * r + c] - RQV[2 * r + c] - RQV[2 * c + r]
+                                   + RM[3 * r] * Ri[3 * c] + RM[3 * r + 1] * Ri[3 * c + 1] + RM[3 * r + 2] * Ri[3 * c + 2];
+            X[12 * i + k] = E[0];
+            X[12 * i + 4 + k] = E[1];
+            X[12 * i + 8 + k] = E[3];
+        }
+    }
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&bu); PyBuffer_Release(&bw); PyBuffer_Release(&bW); PyBuffer_Release(&bG);
+    PyBuffer_Release(&oX); PyBuffer_Release(&owk);
+    return PyBool_FromLong(ok);
+}
+
+/* ---------------------------------------------------------------------------------
+ * The noise model's fit (shipstar.pipeline._conditions.NoiseModel._fit, the same steps)
+ * ------------------------------------------------------------------------------- */
+
+/* Gauss-Jordan inverse with partial pivoting of an n x n (n <= 4), in place into inv;
+ * 0 for an exactly zero pivot (numpy.linalg.inv's LinAlgError) */
+static int gj_inverse(const double *A, int n, double *inv)
+{
+    double M[4][8];
+    for (int r = 0; r < n; r++)
+        for (int c = 0; c < n; c++) { M[r][c] = A[n * r + c]; M[r][n + c] = r == c ? 1.0 : 0.0; }
+    for (int col = 0; col < n; col++) {
+        int piv = col;
+        for (int r = col + 1; r < n; r++)
+            if (fabs(M[r][col]) > fabs(M[piv][col])) piv = r;
+        if (M[piv][col] == 0.0) return 0;
+        if (piv != col)
+            for (int c = 0; c < 2 * n; c++) { double t = M[col][c]; M[col][c] = M[piv][c]; M[piv][c] = t; }
+        double d = M[col][col];
+        for (int c = 0; c < 2 * n; c++) M[col][c] /= d;
+        for (int r = 0; r < n; r++) {
+            if (r == col || M[r][col] == 0.0) continue;
+            double f = M[r][col];
+            for (int c = 0; c < 2 * n; c++) M[r][c] -= f * M[col][c];
+        }
+    }
+    for (int r = 0; r < n; r++)
+        for (int c = 0; c < n; c++) inv[n * r + c] = M[r][n + c];
+    return 1;
+}
+
+/* _fit_shape_floor: theta (4) and sigma_f2 from A (4x4), b (4); 0 when singular/not finite */
+static int fit_shape_floor(const double *A, const double *b, double min_shape, double *theta, double *sigma_f2)
+{
+    double Ai[16];
+    if (!gj_inverse(A, 4, Ai)) return 0;
+    for (int r = 0; r < 4; r++) theta[r] = Ai[4 * r] * b[0] + Ai[4 * r + 1] * b[1] + Ai[4 * r + 2] * b[2] + Ai[4 * r + 3] * b[3];
+    double v = 2.0 * Ai[15];
+    *sigma_f2 = sqrt(v > 0.0 ? v : 0.0);
+    if (!(theta[3] > 0.0)) {                       /* the Cramer-Rao covariances explain it all */
+        double A3[9] = {A[0], A[1], A[2], A[4], A[5], A[6], A[8], A[9], A[10]}, A3i[9];
+        if (!gj_inverse(A3, 3, A3i)) return 0;
+        for (int r = 0; r < 3; r++) theta[r] = A3i[3 * r] * b[0] + A3i[3 * r + 1] * b[1] + A3i[3 * r + 2] * b[2];
+        theta[3] = 0.0;
+    }
+    for (int r = 0; r < 4; r++)
+        if (!isfinite(theta[r])) return 0;
+    double half_tr = 0.5 * (theta[0] + theta[2]), half_diff = 0.5 * (theta[0] - theta[2]);
+    double rad = sqrt(half_diff * half_diff + theta[1] * theta[1]);
+    if (half_tr - rad < min_shape) {
+        /* S's eigenvalues raised to min_shape: S = sum max(lam, min) v v^T */
+        double lo = half_tr - rad, hi = half_tr + rad;
+        double phi = 0.5 * atan2(2.0 * theta[1], theta[0] - theta[2]);   /* the larger one's axis */
+        double c = cos(phi), s = sin(phi);
+        double l_hi = hi > min_shape ? hi : min_shape, l_lo = lo > min_shape ? lo : min_shape;
+        theta[0] = l_hi * c * c + l_lo * s * s;
+        theta[1] = (l_hi - l_lo) * c * s;
+        theta[2] = l_hi * s * s + l_lo * c * c;
+    }
+    return 1;
+}
+
+/* clip_and_weights + normal equations over one frame's stars (rows of z (m, 2), zz (m, 3),
+ * X (m, 3, 4)) under theta, added into A (4x4), b (4); returns the stars within clip */
+static long clip_normal(const double *z, const double *zz, const double *X, long m, const double *theta,
+                        double clip, double *A, double *b)
+{
+    static const double ROW_WEIGHTS[3] = {1.0, 2.0, 1.0};
+    long used = 0;
+    for (long i = 0; i < m; i++) {
+        const double *Xi = X + 12 * i;
+        double V[3];
+        for (int r = 0; r < 3; r++)
+            V[r] = Xi[4 * r] * theta[0] + Xi[4 * r + 1] * theta[1] + Xi[4 * r + 2] * theta[2] + Xi[4 * r + 3] * theta[3];
+        double det = V[0] * V[2] - V[1] * V[1];
+        if (!(det > 0.0)) continue;
+        double z0 = z[2 * i], z1 = z[2 * i + 1];
+        double chi2 = (z0 * z0 * V[2] - 2.0 * z0 * z1 * V[1] + z1 * z1 * V[0]) / det;
+        if (!(chi2 < clip * clip)) continue;
+        used++;
+        double tr = V[0] + V[2], w = 4.0 / (tr * tr);
+        for (int r = 0; r < 3; r++) {
+            const double *x = Xi + 4 * r;
+            double wr = w * ROW_WEIGHTS[r];
+            for (int p = 0; p < 4; p++) {
+                b[p] += wr * x[p] * zz[3 * i + r];
+                for (int q = 0; q < 4; q++) A[4 * p + q] += wr * x[p] * x[q];
+            }
+        }
+    }
+    return used;
+}
+
+/* noise_fit(frames, min_stars, clip, min_shape, out_theta) -> (ok, sigma_f2): NoiseModel._fit
+ * of frames = sequence of (t_s, A (4, 4), b (4,), m, z (m, 2), zz (m, 3), X (m, 3, 4)), the
+ * arrays float64 C-ordered: the frames' normal equations summed and solved, then every star
+ * re-weighted under that model (those beyond clip left out) and solved again. */
+static PyObject *py_noise_fit(PyObject *self, PyObject *args)
+{
+    PyObject *frames, *seq = NULL;
+    long min_stars;
+    double clip, min_shape;
+    Py_buffer otheta;
+    if (!PyArg_ParseTuple(args, "Olddw*", &frames, &min_stars, &clip, &min_shape, &otheta)) return NULL;
+    double *theta = otheta.buf, A[16] = {0}, b[4] = {0}, sigma_f2 = NAN;
+    int ok = 0;
+    Py_buffer *bufs = NULL;
+    long k = 0, n_total = 0, nb = 0;
+    seq = PySequence_Fast(frames, "noise_fit: frames must be a sequence");
+    if (!seq) goto done;
+    k = (long)PySequence_Fast_GET_SIZE(seq);
+    bufs = PyMem_Calloc((size_t)(5 * k + 1), sizeof(Py_buffer));
+    if (!bufs) { PyErr_NoMemory(); goto done; }
+    for (long f = 0; f < k; f++) {                      /* A, b, z, zz, X of each frame */
+        PyObject *fr = PySequence_Fast_GET_ITEM(seq, f);
+        static const int FIELDS[5] = {1, 2, 4, 5, 6};
+        for (int j = 0; j < 5; j++) {
+            PyObject *item = PySequence_GetItem(fr, FIELDS[j]);
+            if (!item) goto done;
+            int rc = PyObject_GetBuffer(item, &bufs[nb], PyBUF_C_CONTIGUOUS);
+            Py_DECREF(item);
+            if (rc < 0) goto done;
+            nb++;
+        }
+        n_total += (long)(bufs[nb - 3].len / (2 * sizeof(double)));
+    }
+    if (n_total < min_stars) goto done;
+    for (long f = 0; f < k; f++) {
+        const double *Af = bufs[5 * f].buf, *bf = bufs[5 * f + 1].buf;
+        for (int j = 0; j < 16; j++) A[j] += Af[j];
+        for (int j = 0; j < 4; j++) b[j] += bf[j];
+    }
+    double first[4], s0;
+    if (!fit_shape_floor(A, b, min_shape, first, &s0)) goto done;
+    memset(A, 0, sizeof A);
+    memset(b, 0, sizeof b);
+    long used = 0;
+    for (long f = 0; f < k; f++) {
+        long m = (long)(bufs[5 * f + 2].len / (2 * sizeof(double)));
+        used += clip_normal(bufs[5 * f + 2].buf, bufs[5 * f + 3].buf, bufs[5 * f + 4].buf, m, first, clip, A, b);
+    }
+    if (used < min_stars) goto done;
+    ok = fit_shape_floor(A, b, min_shape, theta, &sigma_f2);
+done:
+    for (long j = 0; j < nb; j++) PyBuffer_Release(&bufs[j]);
+    PyMem_Free(bufs);
+    Py_XDECREF(seq);
+    PyBuffer_Release(&otheta);
+    if (PyErr_Occurred()) return NULL;
+    return Py_BuildValue("Nd", PyBool_FromLong(ok), sigma_f2);
+}
+
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS, "solve_attitude's QUEST path (see _solve.py)"},
+    {"quest", py_quest, METH_VARARGS, "QUEST of weighted rows (see pipeline/_conditions.py)"},
+    {"residual_moments", py_residual_moments, METH_VARARGS,
+     "expected whitened residual moments of a weighted fit (see pipeline/_conditions.py)"},
+    {"noise_fit", py_noise_fit, METH_VARARGS, "NoiseModel._fit (see pipeline/_conditions.py)"},
     {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef moddef = {PyModuleDef_HEAD_INIT, "_ckernels",

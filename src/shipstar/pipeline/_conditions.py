@@ -149,7 +149,9 @@ class NoiseModel:
         z, zz, X, w = z[use], zz[use], X[use], w[use]
         A, b = _normal_equations(zz, X, w)
         self._prune(t_s)
-        self._frames.append((float(t_s), A, b, len(z), z, zz, X))
+        c64 = np.ascontiguousarray                      # as the compiled fit reads them
+        self._frames.append((float(t_s), c64(A, dtype=np.float64), c64(b, dtype=np.float64), len(z),
+                             c64(z, dtype=np.float64), c64(zz, dtype=np.float64), c64(X, dtype=np.float64)))
         self._cache = None
 
     def estimate(self, t_s: float):
@@ -170,7 +172,18 @@ class NoiseModel:
     def _fit(self, frames):
         """``(S, f2, sigma_f2)`` from ``frames``, or None: the frames' own normal equations
         summed, then the stars re-weighted once with that model (those beyond
-        :data:`SHAPE_CLIP` under it left out)."""
+        :data:`SHAPE_CLIP` under it left out).  Compiled (``attitude._ckernels.noise_fit``,
+        the same steps); :meth:`_fit_python` is its reference."""
+        from shipstar.attitude import _ckernels
+
+        theta = np.empty(4)
+        ok, sigma_f2 = _ckernels.noise_fit(frames, self.min_stars, SHAPE_CLIP, _MIN_SHAPE, theta)
+        if not ok:
+            return None
+        return np.array([[theta[0], theta[1]], [theta[1], theta[2]]]), float(theta[3]), sigma_f2
+
+    def _fit_python(self, frames):
+        """:meth:`_fit` in NumPy (the compiled kernel's reference)."""
         if sum(f[3] for f in frames) < self.min_stars:
             return None
         fit = _fit_shape_floor(sum(f[1] for f in frames), sum(f[2] for f in frames))
@@ -276,7 +289,29 @@ def residual_moments(w_sensor, weights, whiten_per_rad, floor_gram_per_px2):
     X : ndarray, shape (N, 3, 4)
         Rows ``(z_x^2, z_x z_y, z_y^2)``, columns ``(S_xx, S_xy, S_yy, f^2)``; None when
         the fit is singular.
+
+    Notes
+    -----
+    Computed by the compiled kernel (``attitude._ckernels.residual_moments``, the same
+    steps); :func:`_residual_moments_python` is the reference it is tested against, and
+    answers where the kernel finds a matrix singular.
     """
+    from shipstar.attitude import _ckernels
+
+    u = np.ascontiguousarray(w_sensor, dtype=np.float64)
+    wts = np.ascontiguousarray(weights, dtype=np.float64)
+    W = np.ascontiguousarray(whiten_per_rad, dtype=np.float64)
+    G = np.ascontiguousarray(floor_gram_per_px2, dtype=np.float64)
+    n = len(wts)
+    if u.shape == (n, 3) and W.shape == (n, 2, 3) and G.shape == (n, 2, 2):
+        X = np.empty((n, 3, 4))
+        if _ckernels.residual_moments(u, wts, W, G, X, np.empty(16 * n)):
+            return X
+    return _residual_moments_python(u, wts, W, G)
+
+
+def _residual_moments_python(w_sensor, weights, whiten_per_rad, floor_gram_per_px2):
+    """:func:`residual_moments` in NumPy (the compiled kernel's reference)."""
     from shipstar.attitude._solve import _skew
 
     u = np.asarray(w_sensor, float)
@@ -394,13 +429,15 @@ class ConditionMonitor:
         if inputs is None or inputs.weights is None or not fr.solved or inputs.whiten_per_rad is None \
                 or first is None or not first.solved:
             return
-        from shipstar.attitude import quest
+        from shipstar.attitude import _ckernels
 
         k1 = np.asarray(first.inliers)
-        wts = np.asarray(inputs.weights, float)[k1]
+        wts = np.ascontiguousarray(np.asarray(inputs.weights, float)[k1])
         good = 1.0 / wts - floor_used_px ** 2 < 0.98          # unknown Cramer-Rao sigma (1 px): not used
-        w, v = first.w_sensor[k1], first.v_hor[k1]
-        C0 = quest(w, v, wts)
+        w = np.ascontiguousarray(first.w_sensor[k1], dtype=np.float64)
+        v = np.ascontiguousarray(first.v_hor[k1], dtype=np.float64)
+        C0 = np.empty((3, 3))
+        _ckernels.quest(w, v, wts, C0)                       # attitude.quest, compiled
         e = v @ C0 - w                                       # C^T v - w, sensor frame
         W = inputs.whiten_per_rad[k1]
         X = residual_moments(w, wts, W, inputs.floor_gram_per_px2[k1])
