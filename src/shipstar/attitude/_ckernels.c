@@ -118,6 +118,32 @@ static void sym_rows(const double *W, long n, double *Ws)
                 Ws[9 * i + 3 * r + c] = 0.5 * (W[9 * i + 3 * r + c] + W[9 * i + 3 * c + r]);
 }
 
+/* B = sum a_i v_i w_i^T / sum a_i over the rows with active[i] (all rows: active NULL), the
+ * rows normalised first when normalise is set; 0 when the weights sum to <= 0 (quest's
+ * wahba.prepare and profile_matrix) */
+static int weighted_profile(const double *w, const double *v, const double *a, const uint8_t *active, long n,
+                            int normalise, double *b)
+{
+    double total = 0.0;
+    for (long i = 0; i < n; i++)
+        if (!active || active[i]) total += a[i];
+    if (!(total > 0.0)) return 0;
+    for (int k = 0; k < 9; k++) b[k] = 0.0;
+    for (long i = 0; i < n; i++) {
+        if (active && !active[i]) continue;
+        const double *x = w + 3 * i, *y = v + 3 * i;
+        double nx = 1.0, ny = 1.0;
+        if (normalise) {
+            nx = sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]);
+            ny = sqrt(y[0] * y[0] + y[1] * y[1] + y[2] * y[2]);
+        }
+        double ai = a[i] / total;
+        for (int r = 0; r < 3; r++)
+            for (int c = 0; c < 3; c++) b[3 * r + c] += ai * (y[r] / ny) * (x[c] / nx);
+    }
+    return 1;
+}
+
 /* The rejection loop; FALLBACK for every case the Python path words as a failure. */
 static int reject_loop(const double *w, const double *v, const double *a, const double *sigma, long n,
                        double k_sigma, double max_res_rad, long min_vectors, int reject,
@@ -131,17 +157,8 @@ static int reject_loop(const double *w, const double *v, const double *a, const 
     if (m < min_vectors) return FALLBACK;
     for (;;) {
         if (spread(w, active, n) < PARALLEL_TOL_RAD || spread(v, active, n) < PARALLEL_TOL_RAD) return FALLBACK;
-        double total = 0.0, b[9] = {0};
-        for (long i = 0; i < n; i++)
-            if (active[i]) total += a[i];
-        if (!(total > 0.0)) return FALLBACK;
-        for (long i = 0; i < n; i++) {
-            if (!active[i]) continue;
-            double ai = a[i] / total;
-            const double *vi = v + 3 * i, *wi = w + 3 * i;
-            for (int rr = 0; rr < 3; rr++)
-                for (int cc = 0; cc < 3; cc++) b[3 * rr + cc] += ai * vi[rr] * wi[cc];
-        }
+        double b[9];
+        if (!weighted_profile(w, v, a, active, n, 0, b)) return FALLBACK;
         quest_b(b, C);
         residuals(C, w, v, n, r);
         if (!reject) return SOLVED;
@@ -329,32 +346,39 @@ static PyObject *py_quest(PyObject *self, PyObject *args)
     Py_buffer bw, bv, ba, oC;
     if (!PyArg_ParseTuple(args, "y*y*y*w*", &bw, &bv, &ba, &oC)) return NULL;
     long n = (long)(bw.len / (3 * sizeof(double)));
-    const double *w = bw.buf, *v = bv.buf, *a = ba.buf;
-    double total = 0.0, b[9] = {0};
-    for (long i = 0; i < n; i++) total += a[i];
-    for (long i = 0; i < n; i++) {
-        const double *x = w + 3 * i, *y = v + 3 * i;
-        double nx = sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]);
-        double ny = sqrt(y[0] * y[0] + y[1] * y[1] + y[2] * y[2]);
-        double ai = a[i] / total;
-        for (int r = 0; r < 3; r++)
-            for (int c = 0; c < 3; c++) b[3 * r + c] += ai * (y[r] / ny) * (x[c] / nx);
-    }
-    quest_b(b, oC.buf);
+    double b[9];
+    if (weighted_profile(bw.buf, bv.buf, ba.buf, NULL, n, 1, b))
+        quest_b(b, oC.buf);
+    else
+        for (int k = 0; k < 9; k++) ((double *)oC.buf)[k] = NAN;     /* no weight: no attitude */
     PyBuffer_Release(&bw); PyBuffer_Release(&bv); PyBuffer_Release(&ba); PyBuffer_Release(&oC);
     Py_RETURN_NONE;
 }
 
-/* inverse of a general 3x3 (row-major) by the adjugate; 0 when det is 0 or not finite */
-static int inv3(const double *m, double *out)
+/* Gauss-Jordan inverse with partial pivoting of an n x n (n <= 4), in place into inv;
+ * 0 for an exactly zero pivot (numpy.linalg.inv's LinAlgError) */
+static int gj_inverse(const double *A, int n, double *inv)
 {
-    double c00 = m[4] * m[8] - m[5] * m[7], c01 = m[5] * m[6] - m[3] * m[8], c02 = m[3] * m[7] - m[4] * m[6];
-    double det = m[0] * c00 + m[1] * c01 + m[2] * c02;
-    if (!isfinite(det) || det == 0.0) return 0;
-    double id = 1.0 / det;
-    out[0] = c00 * id; out[1] = (m[2] * m[7] - m[1] * m[8]) * id; out[2] = (m[1] * m[5] - m[2] * m[4]) * id;
-    out[3] = c01 * id; out[4] = (m[0] * m[8] - m[2] * m[6]) * id; out[5] = (m[2] * m[3] - m[0] * m[5]) * id;
-    out[6] = c02 * id; out[7] = (m[1] * m[6] - m[0] * m[7]) * id; out[8] = (m[0] * m[4] - m[1] * m[3]) * id;
+    double M[4][8];
+    for (int r = 0; r < n; r++)
+        for (int c = 0; c < n; c++) { M[r][c] = A[n * r + c]; M[r][n + c] = r == c ? 1.0 : 0.0; }
+    for (int col = 0; col < n; col++) {
+        int piv = col;
+        for (int r = col + 1; r < n; r++)
+            if (fabs(M[r][col]) > fabs(M[piv][col])) piv = r;
+        if (M[piv][col] == 0.0) return 0;
+        if (piv != col)
+            for (int c = 0; c < 2 * n; c++) { double t = M[col][c]; M[col][c] = M[piv][c]; M[piv][c] = t; }
+        double d = M[col][col];
+        for (int c = 0; c < 2 * n; c++) M[col][c] /= d;
+        for (int r = 0; r < n; r++) {
+            if (r == col || M[r][col] == 0.0) continue;
+            double f = M[r][col];
+            for (int c = 0; c < 2 * n; c++) M[r][c] -= f * M[col][c];
+        }
+    }
+    for (int r = 0; r < n; r++)
+        for (int c = 0; c < n; c++) inv[n * r + c] = M[r][n + c];
     return 1;
 }
 
@@ -377,7 +401,7 @@ static PyObject *py_residual_moments(PyObject *self, PyObject *args)
         for (int r = 0; r < 3; r++)
             for (int c = 0; c < 3; c++) F[3 * r + c] += wts[i] * ((r == c ? 1.0 : 0.0) - x[r] * x[c]);
     }
-    ok = inv3(F, Fi);
+    ok = gj_inverse(F, 3, Fi);
     for (long i = 0; i < n && ok; i++) {
         const double *x = u + 3 * i, *W = Wa + 6 * i;
         double ux[9] = {0, -x[2], x[1], x[2], 0, -x[0], -x[1], x[0], 0};
@@ -442,33 +466,6 @@ static PyObject *py_residual_moments(PyObject *self, PyObject *args)
 /* ---------------------------------------------------------------------------------
  * The noise model's fit (shipstar.pipeline._conditions.NoiseModel._fit, the same steps)
  * ------------------------------------------------------------------------------- */
-
-/* Gauss-Jordan inverse with partial pivoting of an n x n (n <= 4), in place into inv;
- * 0 for an exactly zero pivot (numpy.linalg.inv's LinAlgError) */
-static int gj_inverse(const double *A, int n, double *inv)
-{
-    double M[4][8];
-    for (int r = 0; r < n; r++)
-        for (int c = 0; c < n; c++) { M[r][c] = A[n * r + c]; M[r][n + c] = r == c ? 1.0 : 0.0; }
-    for (int col = 0; col < n; col++) {
-        int piv = col;
-        for (int r = col + 1; r < n; r++)
-            if (fabs(M[r][col]) > fabs(M[piv][col])) piv = r;
-        if (M[piv][col] == 0.0) return 0;
-        if (piv != col)
-            for (int c = 0; c < 2 * n; c++) { double t = M[col][c]; M[col][c] = M[piv][c]; M[piv][c] = t; }
-        double d = M[col][col];
-        for (int c = 0; c < 2 * n; c++) M[col][c] /= d;
-        for (int r = 0; r < n; r++) {
-            if (r == col || M[r][col] == 0.0) continue;
-            double f = M[r][col];
-            for (int c = 0; c < 2 * n; c++) M[r][c] -= f * M[col][c];
-        }
-    }
-    for (int r = 0; r < n; r++)
-        for (int c = 0; c < n; c++) inv[n * r + c] = M[r][n + c];
-    return 1;
-}
 
 /* _fit_shape_floor: theta (4) and sigma_f2 from A (4x4), b (4); 0 when singular/not finite */
 static int fit_shape_floor(const double *A, const double *b, double min_shape, double *theta, double *sigma_f2)
