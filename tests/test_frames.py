@@ -228,3 +228,37 @@ class TestEdgeCases:
         np.testing.assert_allclose(F.unit_from_az_el(0, 0), [1, 0, 0], atol=1e-15)
         np.testing.assert_allclose(F.unit_from_az_el(np.pi / 2, 0), [0, 0, 1], atol=1e-15)
         np.testing.assert_allclose(F.unit_from_az_el(0, np.pi / 2), [0, 1, 0], atol=1e-15)
+
+
+def test_one_matrix_angle_paths_agree_with_the_array_paths():
+    """The plain-float paths for one (3, 3) matrix (ship and installation angles, the
+    gimbal-lock test, the angles' Jacobian) give the array paths' values: the Jacobian
+    exactly (the same operations), the angles within 1 ulp of 2 pi (NumPy's vectorised
+    arctan2 may round differently from the C library's)."""
+    from shipstar.identify._sim import random_attitudes
+    from shipstar.ship import ship_angles_jacobian
+
+    Cs = list(random_attitudes(300, np.random.default_rng(4)))
+    Cs += [F.C_hor_from_deck(1.0, 0.5 * np.pi, 0.3), F.C_hor_from_deck(0.0, -0.5 * np.pi + 1e-8, 0.0),
+           F.C_hor_from_deck(2 * np.pi - 1e-17, 0.0, 0.0), np.eye(3)]
+    for C in Cs:
+        one = F.ship_angles_from_C_hor_from_deck(C)
+        batch = F.ship_angles_from_C_hor_from_deck(C[None])
+        assert all(isinstance(x, np.floating) for x in one)
+        np.testing.assert_allclose([float(x) for x in one], [float(x[0]) for x in batch], rtol=0, atol=1e-15)
+        assert 0.0 <= one[0] < 2 * np.pi
+        assert bool(F.gimbal_lock_mask(C)) == bool(F.gimbal_lock_mask(C[None])[0])
+        if not F.gimbal_lock_mask(C):
+            assert np.array_equal(ship_angles_jacobian(C), ship_angles_jacobian(C[None])[0])
+
+
+def test_installation_matrix_is_made_once_and_read_only():
+    from shipstar.calibrate.installation import Installation
+
+    inst = Installation("A1", "A1", az_rad=0.3, el_rad=0.6, roll_rad=-0.2)
+    C = inst.C_deck_from_sensor
+    assert C is inst.C_deck_from_sensor
+    assert np.array_equal(C, F.C_deck_from_sensor(0.3, 0.6, -0.2))
+    with pytest.raises(ValueError):
+        C[0, 0] = 1.0
+    assert inst == Installation("A1", "A1", az_rad=0.3, el_rad=0.6, roll_rad=-0.2)

@@ -102,6 +102,8 @@ def _yzx_angles(C):
     set to 0 and ``a`` carries the whole rotation.
     """
     C = np.asarray(C, dtype=float)
+    if C.shape == (3, 3):
+        return _yzx_angles_one(C)
     b = np.arctan2(C[..., 1, 0], np.hypot(C[..., 1, 1], C[..., 1, 2]))
     a = np.arctan2(C[..., 2, 0], C[..., 0, 0])
     c = -np.arctan2(C[..., 1, 2], C[..., 1, 1])
@@ -111,6 +113,22 @@ def _yzx_angles(C):
         a = np.where(locked, a_locked, a)
         c = np.where(locked, 0.0, c)
     return wrap_2pi(a), b, c
+
+
+def _yzx_angles_one(C):
+    """:func:`_yzx_angles` of one (3, 3) matrix in plain floats (the fusion asks for
+    several every epoch; the array path costs ten times as much for one): the same
+    operations in the same order, returned as NumPy floats."""
+    (c00, _, c02), (c10, c11, c12), (c20, _, c22) = C.tolist()
+    b = math.atan2(c10, math.hypot(c11, c12))
+    if math.hypot(c00, c20) < GIMBAL_COS_TOL:
+        a, c = math.atan2(-c02, c22), 0.0
+    else:
+        a, c = math.atan2(c20, c00), -math.atan2(c12, c11)
+    a %= TWO_PI
+    if a >= TWO_PI:
+        a = 0.0
+    return np.float64(a), np.float64(b), np.float64(c)
 
 
 def C_hor_from_deck(heading_rad, pitch_rad, roll_rad):
@@ -164,6 +182,8 @@ def gimbal_lock_mask(C, cos_tol=1e-6):
     """True where the middle (pitch/elevation) angle of a Y-Z-X matrix is within
     ``acos``-distance of +-90 deg, i.e. ``cos(pitch) < cos_tol``; shape ``S``."""
     C = np.asarray(C, dtype=float)
+    if C.shape == (3, 3):
+        return np.bool_(math.hypot(float(C[0, 0]), float(C[2, 0])) < cos_tol)
     return np.hypot(C[..., 0, 0], C[..., 2, 0]) < cos_tol
 
 

@@ -209,3 +209,21 @@ def test_tracking_and_its_fallback_both_failing_answer_unsolved(db12, cam12):
     assert not r.solved and r.mode == "lost_in_space"
     assert r.reason.startswith("tracking: ") and "; lost-in-space: " in r.reason
     assert len(r.star_index) == 4 and np.all(r.hip == -1)
+
+
+def test_tracking_alternating_cameras_and_prior_errors_never_reuses_stale_gates(db12, cam12):
+    # the one-call path keeps the camera's numbers and the packed gates between calls
+    # (keyed by the camera object and every gate input): alternating two focal lengths and
+    # two prior errors, every answer is the StarField path's for that call's inputs
+    rng = np.random.default_rng(17)
+    other = cam12.replace(f_mm=cam12.f_mm * 1.004)
+    for k, C in enumerate(random_attitudes(12, rng)):
+        cam = (cam12, other)[k % 2]
+        err_deg = (0.3, 0.6)[(k // 2) % 2]
+        f = simulate_frame(db12, cam, C, rng, sigma_px=0.2)
+        prior = _rotate(C, 0.2, rng)
+        fast = identify_tracking(f.xy_px, db12, prior, camera=cam, prior_error_deg=err_deg, fallback=False)
+        ref = tracking(field_from_camera(f.xy_px, cam, error_px=1.0), db12, prior,
+                       prior_error_rad=err_deg * DEG2RAD)
+        _same(fast, ref)
+        assert fast.solved

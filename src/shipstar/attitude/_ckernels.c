@@ -1,6 +1,7 @@
 /* Compiled path of shipstar.attitude.solve_attitude (shipstar.attitude._ckernels), and
  * the attitude fit's residual statistics for the pipeline's noise model (quest,
- * residual_moments, noise_fit: pipeline/_conditions.py).
+ * residual_moments, noise_fit: pipeline/_conditions.py), and the normal equations of the
+ * pipeline's motion fit (motion_fit: pipeline/_motion.py).
  *
  * Plain C99 on Python's buffer protocol (no NumPy headers); shipstar/attitude/_solve.py
  * is the only caller and makes every array native float64 / uint8, C ordered.
@@ -588,12 +589,112 @@ done:
     return Py_BuildValue("Nd", PyBool_FromLong(ok), sigma_f2);
 }
 
+/* rotation vector of a rotation matrix M (angle below pi): pipeline._motion.rotvecs */
+static void rotvec3(const double *M, double *r)
+{
+    double s0 = M[7] - M[5], s1 = M[2] - M[6], s2 = M[3] - M[1];
+    double n = sqrt(s0 * s0 + s1 * s1 + s2 * s2);
+    double angle = atan2(0.5 * n, 0.5 * (M[0] + M[4] + M[8] - 1.0));
+    double scale = n > 0.0 ? angle / n : 0.5;
+    r[0] = s0 * scale; r[1] = s1 * scale; r[2] = s2 * scale;
+}
+
+#define MOTION_MAX_M 30    /* 3 (degree + 1), degree <= 9 */
+
+/* motion_fit(t, C, P, newest, degree, scale_s, floor_rad2, out_coef) -> ok: the numbers of
+ * pipeline._motion.fit_motion for n samples, t (n,), C (n, 3, 3), P (n, 3, 3): r_k =
+ * log(C_newest^T C_k), info_k = inv(sym(P_k) + floor I), the normal equations of the
+ * polynomial of the given degree in tau = (t - t_newest) / scale_s, solved by Cholesky
+ * into out_coef (degree + 1, 3).  0 (nothing written) when an information matrix is
+ * singular or a Cholesky pivot falls below 1e-12 of the largest diagonal term: the
+ * caller's least squares (with its rank cut) decides then. */
+static PyObject *py_motion_fit(PyObject *self, PyObject *args)
+{
+    Py_buffer bt, bc, bp, oc;
+    long newest, degree;
+    double scale_s, floor_rad2;
+    if (!PyArg_ParseTuple(args, "y*y*y*llddw*", &bt, &bc, &bp, &newest, &degree, &scale_s, &floor_rad2, &oc))
+        return NULL;
+    long n = (long)(bt.len / sizeof(double));
+    int m = 3 * (int)(degree + 1), ok = 0;
+    if (degree < 0 || m > MOTION_MAX_M || newest < 0 || newest >= n
+        || bc.len != (Py_ssize_t)(9 * n * sizeof(double)) || bp.len != bc.len
+        || oc.len != (Py_ssize_t)(m * sizeof(double))) {
+        PyBuffer_Release(&bt); PyBuffer_Release(&bc); PyBuffer_Release(&bp); PyBuffer_Release(&oc);
+        PyErr_SetString(PyExc_ValueError, "motion_fit: bad sizes");
+        return NULL;
+    }
+    const double *t = bt.buf, *C = bc.buf, *P = bp.buf, *R = C + 9 * newest;
+    double N[MOTION_MAX_M * MOTION_MAX_M], b[MOTION_MAX_M];
+    memset(N, 0, sizeof N);
+    memset(b, 0, sizeof b);
+    int D = (int)degree + 1;
+    ok = 1;
+    Py_BEGIN_ALLOW_THREADS
+    for (long k = 0; k < n && ok; k++) {
+        const double *Ck = C + 9 * k, *Pk = P + 9 * k;
+        double M[9], r[3], Q[9], I[9], Ir[3], basis[MOTION_MAX_M / 3];
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++)
+                M[3 * i + j] = R[i] * Ck[j] + R[3 + i] * Ck[3 + j] + R[6 + i] * Ck[6 + j];
+        rotvec3(M, r);
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++)
+                Q[3 * i + j] = 0.5 * (Pk[3 * i + j] + Pk[3 * j + i]) + (i == j ? floor_rad2 : 0.0);
+        if (!gj_inverse(Q, 3, I)) { ok = 0; break; }
+        for (int a = 0; a < 3; a++) Ir[a] = I[3 * a] * r[0] + I[3 * a + 1] * r[1] + I[3 * a + 2] * r[2];
+        double tau = (t[k] - t[newest]) / scale_s, p = 1.0;
+        for (int i = 0; i < D; i++) { basis[i] = p; p *= tau; }
+        for (int i = 0; i < D; i++) {
+            for (int a = 0; a < 3; a++) b[3 * i + a] += basis[i] * Ir[a];
+            for (int j = 0; j < D; j++) {
+                double bb = basis[i] * basis[j];
+                for (int a = 0; a < 3; a++)
+                    for (int c = 0; c < 3; c++) N[(3 * i + a) * m + 3 * j + c] += bb * I[3 * a + c];
+            }
+        }
+    }
+    if (ok) {                                   /* Cholesky N = L L^T in place (lower) */
+        double dmax = 0.0;
+        for (int i = 0; i < m; i++) dmax = N[i * m + i] > dmax ? N[i * m + i] : dmax;
+        for (int j = 0; j < m && ok; j++) {
+            double d = N[j * m + j];
+            for (int k = 0; k < j; k++) d -= N[j * m + k] * N[j * m + k];
+            if (!(d > 1e-12 * dmax)) { ok = 0; break; }
+            d = sqrt(d);
+            N[j * m + j] = d;
+            for (int i = j + 1; i < m; i++) {
+                double v = N[i * m + j];
+                for (int k = 0; k < j; k++) v -= N[i * m + k] * N[j * m + k];
+                N[i * m + j] = v / d;
+            }
+        }
+    }
+    if (ok) {
+        double y[MOTION_MAX_M], *x = oc.buf;
+        for (int i = 0; i < m; i++) {
+            double v = b[i];
+            for (int k = 0; k < i; k++) v -= N[i * m + k] * y[k];
+            y[i] = v / N[i * m + i];
+        }
+        for (int i = m - 1; i >= 0; i--) {
+            double v = y[i];
+            for (int k = i + 1; k < m; k++) v -= N[k * m + i] * x[k];
+            x[i] = v / N[i * m + i];
+        }
+    }
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&bt); PyBuffer_Release(&bc); PyBuffer_Release(&bp); PyBuffer_Release(&oc);
+    return PyBool_FromLong(ok);
+}
+
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS, "solve_attitude's QUEST path (see _solve.py)"},
     {"quest", py_quest, METH_VARARGS, "QUEST of weighted rows (see pipeline/_conditions.py)"},
     {"residual_moments", py_residual_moments, METH_VARARGS,
      "expected whitened residual moments of a weighted fit (see pipeline/_conditions.py)"},
     {"noise_fit", py_noise_fit, METH_VARARGS, "NoiseModel._fit (see pipeline/_conditions.py)"},
+    {"motion_fit", py_motion_fit, METH_VARARGS, "fit_motion's normal equations (see pipeline/_motion.py)"},
     {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef moddef = {PyModuleDef_HEAD_INIT, "_ckernels",

@@ -161,8 +161,16 @@ class Installation:
 
     @property
     def C_deck_from_sensor(self) -> np.ndarray:
-        """The installation matrix (seed 000 eq. 2), shape (3, 3)."""
-        return _C_deck_from_sensor(self.az_rad, self.el_rad, self.roll_rad)
+        """The installation matrix (seed 000 eq. 2), shape (3, 3), read-only.
+
+        Made once per installation (the fusion asks for it several times every epoch);
+        the angles cannot change (frozen), so neither can it."""
+        C = self.__dict__.get("_C_deck_from_sensor")
+        if C is None:
+            C = _C_deck_from_sensor(self.az_rad, self.el_rad, self.roll_rad)
+            C.setflags(write=False)
+            object.__setattr__(self, "_C_deck_from_sensor", C)
+        return C
 
     @classmethod
     def from_matrix(cls, sensor: str, camera: str, C_deck_from_sensor, **meta) -> "Installation":

@@ -157,22 +157,46 @@ def _corner_points(width_px: int, height_px: int) -> np.ndarray:
 _BOUNDS_CACHE: dict = {}
 
 
+_PINHOLE_CACHE: dict = {}
+
+
+def _pinhole_camera(camera):
+    """``(cam, bounds)`` of a camera without distortion (``cam = (x0_px, y0_px,
+    pixel_mm, f_mm)``, ``bounds`` :func:`pinhole_bounds`), or None; cached per camera
+    object (a camera is frozen; a tracker passes the same one every frame)."""
+    key = id(camera)
+    hit = _PINHOLE_CACHE.get(key)
+    if hit is not None and hit[0] is camera:
+        return hit[1]
+    try:
+        if not camera.distortion.is_zero:
+            value = None
+        else:
+            value = ((float(camera.x0_px), float(camera.y0_px), float(camera.pixel_mm), float(camera.f_mm)),
+                     pinhole_bounds(camera))
+    except (AttributeError, TypeError, ValueError):
+        return None
+    if len(_PINHOLE_CACHE) > 32:
+        _PINHOLE_CACHE.clear()
+    _PINHOLE_CACHE[key] = (camera, value)
+    return value
+
+
 def pinhole_input(stars, camera):
     """``(xy_px (N, 2) float64 C-ordered, (x0_px, y0_px, pixel_mm, f_mm), bounds)`` when
     ``stars`` are pixel centroids (N, 2) and ``camera`` a camera without distortion: the
     compiled one-call paths take them with no :class:`StarField`.  None otherwise (the
     general path checks the input and builds the field)."""
+    pinhole = _pinhole_camera(camera)
+    if pinhole is None:
+        return None
     try:
-        if not camera.distortion.is_zero:
-            return None
-        cam = (float(camera.x0_px), float(camera.y0_px), float(camera.pixel_mm), float(camera.f_mm))
-        bounds = pinhole_bounds(camera)
         xy = np.ascontiguousarray(stars, dtype=np.float64)
-    except (AttributeError, TypeError, ValueError):
+    except (TypeError, ValueError):
         return None
     if xy.ndim != 2 or xy.shape[1] != 2:
         return None
-    return xy, cam, bounds
+    return xy, pinhole[0], pinhole[1]
 
 
 def pinhole_bounds(camera) -> tuple:

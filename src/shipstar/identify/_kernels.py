@@ -15,7 +15,7 @@ import numpy as np
 from shipstar.identify import _ckernels
 from shipstar.identify._verify import unit_f64
 
-__all__ = ["db_buffers", "lis_solve", "lis_pinhole", "track_solve", "track_pinhole", "wahba",
+__all__ = ["db_buffers", "lis_solve", "lis_pinhole", "track_solve", "track_pinhole", "pack_track_params", "pack_camera", "wahba",
            "pinhole_unproject", "unit_rows"]
 
 _NO_ROWS = np.empty(0, dtype=np.int64)
@@ -239,25 +239,37 @@ def track_solve(t, w, C_prior, db, params, *, n_field: int, usable, t_more=None)
     return code, count, p, bool(voted), C, star, hip, m, p_false, rms
 
 
-def track_pinhole(xy, cam, m: int, C_prior, db, params):
+def pack_track_params(db, m: int, params) -> tuple:
+    """``(iparams, dparams)``: :func:`._tracking.track_params` packed for
+    :func:`track_pinhole` with ``m`` used rows."""
+    return _track_params(db_buffers(db), m, params)
+
+
+def pack_camera(cam) -> bytes:
+    """``cam = (x0_px, y0_px, pixel_mm, f_mm)`` packed for the pinhole kernels."""
+    return _pack_d4(*cam)
+
+
+def track_pinhole(xy, cam, m: int, C_prior, db, iparams, dparams):
     """:func:`track_solve` from pixel centroids ``xy (N, 2)`` (float64, C order) of a
-    camera without distortion, ``cam = (x0_px, y0_px, pixel_mm, f_mm)``, at focal scale
-    1, in one compiled call; the brightest ``m`` (<= 64) rows are used (the others as
-    ``t_more``).  Returns None
-    when a centroid is not finite, else ``(code, count, p, voted, C, star_index, hip,
-    u_sensor (N, 3), n_matched, p_false, rms_arcsec)``."""
+    camera without distortion, ``cam = (x0_px, y0_px, pixel_mm, f_mm)`` (or
+    :func:`pack_camera` of it), at focal scale 1, in one compiled call; the brightest
+    ``m`` (<= 64) rows are used (the others as ``t_more``); ``iparams, dparams`` from
+    :func:`pack_track_params` for this ``m``.  Returns None when a centroid is not
+    finite, else ``(code, count, p, voted, C, star_index, hip, u_sensor (N, 3),
+    n_matched, p_false, rms_arcsec)``."""
     n = xy.shape[0]
     if xy.dtype is not _F64 or xy.shape != (n, 2) or m > min(n, 64):   # C order: the buffer's
         raise ValueError("bad tracking input sizes")
     C_prior = _rotation_arg(C_prior)
     b = db_buffers(db)
-    ip, dp = _track_params(b, m, params)
     C = np.empty((3, 3))
     u = np.empty((n, 3))
     star = np.empty(n, dtype=np.int64)
     hip = np.empty(n, dtype=np.int64)
-    out = _ckernels.track_pinhole(xy, _pack_d4(*cam), C_prior, b.cell_u, b.cell_start, b.cell_index,
-                                  ip, dp, C, u, b.hip, star, hip)
+    out = _ckernels.track_pinhole(xy, cam if isinstance(cam, bytes) else _pack_d4(*cam), C_prior,
+                                  b.cell_u, b.cell_start, b.cell_index, iparams, dparams, C, u, b.hip,
+                                  star, hip)
     if out is None:
         return None
     code, count, p, voted, n_match, p_false, rms, _ = out

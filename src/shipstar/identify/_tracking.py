@@ -173,21 +173,43 @@ def track_params(bounds, s: float, err: float, prior_error_rad: float, n_use: in
             (y1 - y0) * (z1 - z0) * s * s, p_false_max)
 
 
+#: packed gates of the compiled tracking, keyed by everything they are made of (a tracker
+#: asks for the same few over and over: one per star count at its fixed prior error)
+_PACKED: dict = {}
+
+
+def _packed_gates(bounds, error_rad: float, prior_error_rad: float, m: int, min_matches: int,
+                  p_false_max: float, db):
+    """``(params, iparams, dparams)`` of :func:`track_params` at focal scale 1, packed for
+    the kernel; cached (a tracked frame spends more on packing them than on matching)."""
+    key = (bounds, error_rad, prior_error_rad, m, min_matches, p_false_max, id(db))
+    hit = _PACKED.get(key)
+    if hit is not None and hit[0] is db:
+        return hit[1]
+    params = track_params(bounds, 1.0, error_rad, prior_error_rad, m, min_matches, p_false_max)
+    packed = (params,) + _kernels.pack_track_params(db, m, params)
+    if len(_PACKED) > 512:
+        _PACKED.clear()
+    _PACKED[key] = (db, packed)
+    return packed
+
+
 def tracking_pinhole(xy, cam, error_rad: float, bounds, db, C_prior, *, prior_error_rad: float,
                      p_false_max: float = 1e-6, min_matches: int = 3,
                      max_verify_stars: int = 60) -> Identification | None:
     """:func:`tracking` at focal scale 1 of pixel centroids ``xy (N, 2)`` (float64, C
-    order) of a camera without distortion, ``cam = (x0_px, y0_px, pixel_mm, f_mm)``,
-    with the image rectangle ``bounds`` (tangent plane), in one compiled call: the same
-    result as through a :class:`StarField`.  None when a centroid is not finite or there
-    are fewer than ``min_matches`` stars (the caller builds the field)."""
+    order) of a camera without distortion, ``cam = (x0_px, y0_px, pixel_mm, f_mm)`` (or
+    those four packed as native float64 bytes), with the image rectangle ``bounds``
+    (tangent plane, a tuple), in one compiled call: the same result as through a
+    :class:`StarField`.  None when a centroid is not finite or there are fewer than
+    ``min_matches`` stars (the caller builds the field)."""
     t0 = time.perf_counter()
     n = xy.shape[0]
     m = min(n, max_verify_stars, 64)
     if m < min_matches:
         return None
-    params = track_params(bounds, 1.0, error_rad, prior_error_rad, m, min_matches, p_false_max)
-    out = _kernels.track_pinhole(xy, cam, m, C_prior, db, params)
+    params, ip, dp = _packed_gates(bounds, error_rad, prior_error_rad, m, min_matches, p_false_max, db)
+    out = _kernels.track_pinhole(xy, cam, m, C_prior, db, ip, dp)
     if out is None:
         return None
     code, count, p, voted, C, star_index, hip, u, n_matched, p_false, rms = out

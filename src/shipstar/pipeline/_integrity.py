@@ -60,9 +60,15 @@ SWAP_MIN_ARCSEC = 3600.0
 @functools.lru_cache(maxsize=None)
 def chi2_limit(dof: int, p: float = FALSE_ALARM_PROBABILITY) -> float:
     """The chi-square quantile exceeded with probability ``p`` (``dof`` degrees of freedom)."""
+    return _chi2_limit(int(dof), float(p))
+
+
+@functools.lru_cache(maxsize=256)
+def _chi2_limit(dof: int, p: float) -> float:
+    # a few (dof, p) pairs, asked for every epoch (scipy's ufunc costs ~10 us a call)
     from scipy.special import chdtri
 
-    return float(chdtri(int(dof), float(p)))
+    return float(chdtri(dof, p))
 
 
 @dataclass(frozen=True)
@@ -99,9 +105,9 @@ class Integrity:
 
 
 def _log(C) -> np.ndarray:
-    from shipstar.pipeline._motion import rotvecs
+    from shipstar.pipeline._motion import rotvec
 
-    return rotvecs(C)[0]
+    return rotvec(C)
 
 
 def _weighted(Cs, infos):

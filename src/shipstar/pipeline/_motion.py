@@ -44,10 +44,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from shipstar.attitude import _ckernels
 from shipstar.units import ASEC2RAD
 
 __all__ = ["MOTION_WINDOW_S", "MOTION_DEGREE", "MIN_MOTION_SAMPLES", "SIGMA_FLOOR_ARCSEC", "MotionFit",
-           "MotionWindow", "fit_motion", "rotvecs", "expm_rotvec"]
+           "MotionWindow", "fit_motion", "rotvecs", "rotvec", "expm_rotvec"]
 
 #: Attitudes older than this (s) before the newest one used are not fitted.
 MOTION_WINDOW_S = 0.8
@@ -67,6 +68,18 @@ def rotvecs(C) -> np.ndarray:
     angle = np.arctan2(0.5 * n, 0.5 * (C[:, 0, 0] + C[:, 1, 1] + C[:, 2, 2] - 1.0))
     scale = np.divide(angle, n, out=np.full_like(n, 0.5), where=n > 0.0)      # angle / (2 sin angle) * 2
     return s * scale[:, None]
+
+
+def rotvec(C) -> np.ndarray:
+    """The rotation vector (3,) of one rotation matrix (3, 3): :func:`rotvecs` in plain
+    floats (the engine takes several every epoch; the array path costs ten times as much
+    for one)."""
+    (c00, c01, c02), (c10, c11, c12), (c20, c21, c22) = np.asarray(C, float).reshape(3, 3).tolist()
+    s0, s1, s2 = c21 - c12, c02 - c20, c10 - c01
+    n = math.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+    angle = math.atan2(0.5 * n, 0.5 * (c00 + c11 + c22 - 1.0))
+    scale = angle / n if n > 0.0 else 0.5
+    return np.array([s0 * scale, s1 * scale, s2 * scale])
 
 
 def expm_rotvec(phi) -> np.ndarray:
@@ -170,25 +183,46 @@ def fit_motion(t_s, C_hor_from_body, covariance_rad2, *, degree: int = MOTION_DE
     MotionFit or None
         None with fewer than :data:`MIN_MOTION_SAMPLES` distinct times.
     """
-    t = np.asarray(t_s, float).reshape(-1)
+    t = np.ascontiguousarray(t_s, dtype=float).reshape(-1)
     n_times = len(np.unique(t))
     if n_times < MIN_MOTION_SAMPLES:
         return None
     deg = min(int(degree), (n_times - 1) // 2)
-    C = np.asarray(C_hor_from_body, float).reshape(-1, 3, 3)
+    C = np.ascontiguousarray(C_hor_from_body, dtype=float).reshape(-1, 3, 3)
+    P = np.ascontiguousarray(covariance_rad2, dtype=float).reshape(-1, 3, 3)
+    if C.shape[0] != t.size or P.shape[0] != t.size:
+        raise ValueError("fit_motion: t_s, C_hor_from_body and covariance_rad2 must have one row per sample")
     newest = int(np.argmax(t))
-    C_ref, t_ref = C[newest], float(t[newest])
+    t_ref = float(t[newest])
+    coef = np.empty((deg + 1, 3))
+    if not (_COMPILED[0] and deg <= 9 and _ckernels.motion_fit(t, C, P, newest, deg, float(scale_s),
+                                                                _FLOOR_RAD2, coef)):
+        coef = _coefficients_python(t, C, P, newest, deg, scale_s)
+    return MotionFit(t_ref, float(scale_s), C[newest].copy(), coef, float(t.min()), t_ref, len(t))
+
+
+#: the sigma floor as a variance (rad^2)
+_FLOOR_RAD2 = (SIGMA_FLOOR_ARCSEC * ASEC2RAD) ** 2
+#: ``[True]``: :func:`fit_motion`'s normal equations are formed and solved compiled
+#: (``shipstar.attitude._ckernels.motion_fit``, Cholesky); the tests set ``[False]`` to run
+#: :func:`_coefficients_python`, the reference, which also takes every case the compiled
+#: path declines (a singular covariance, a normal matrix too ill-conditioned for Cholesky)
+_COMPILED = [True]
+
+
+def _coefficients_python(t, C, P, newest: int, deg: int, scale_s: float) -> np.ndarray:
+    """The polynomial coefficients ``(deg + 1, 3)`` of :func:`fit_motion` in NumPy:
+    ``r_k = log(C_newest^T C_k)`` weighted by ``inv(P_k + floor)``, least squares with a
+    rank cut (``lstsq``, rcond 1e-13)."""
+    C_ref = C[newest]
     r = rotvecs(np.einsum("ji,njk->nik", C_ref, C))                              # log(C_ref^T C_k)
-    floor = (SIGMA_FLOOR_ARCSEC * ASEC2RAD) ** 2
-    P = np.asarray(covariance_rad2, float).reshape(-1, 3, 3)
-    info = np.linalg.inv(0.5 * (P + np.swapaxes(P, 1, 2)) + floor * np.eye(3))
-    tau = (t - t_ref) / scale_s
+    info = np.linalg.inv(0.5 * (P + np.swapaxes(P, 1, 2)) + _FLOOR_RAD2 * np.eye(3))
+    tau = (t - t[newest]) / scale_s
     basis = tau[:, None] ** np.arange(deg + 1)[None, :]                          # (N, D+1)
     m = 3 * (deg + 1)
     normal = np.einsum("ki,kj,kab->iajb", basis, basis, info).reshape(m, m)
     rhs = np.einsum("ki,kab,kb->ia", basis, info, r).reshape(m)
-    coef = np.linalg.lstsq(normal, rhs, rcond=1e-13)[0].reshape(deg + 1, 3)
-    return MotionFit(t_ref, float(scale_s), C_ref, coef, float(t.min()), t_ref, len(t))
+    return np.linalg.lstsq(normal, rhs, rcond=1e-13)[0].reshape(deg + 1, 3)
 
 
 class MotionWindow:

@@ -491,7 +491,7 @@ class MountEstimator:
         """Add one fused epoch; ``shifts_s``: the time shift applied to each paired frame,
         ``configs_used``: the configs the epoch was fused with, ``motion``: the deck's motion
         fit around the epoch (None: not known)."""
-        from shipstar.pipeline._motion import rotvecs
+        from shipstar.pipeline._motion import rotvec
 
         ref = self.reference
         fr_ref, att_ref = paired[ref], epoch.single[ref]
@@ -500,7 +500,7 @@ class MountEstimator:
         for k, tr in self._tracks.items():
             fr, att, c = paired[k], epoch.single[k], configs_used[k]
             if ok_ref and fr is not None and att.solved and fr.horizontal is not None and c.installation is not None:
-                d = rotvecs(att_ref.C_hor_from_deck.T @ att.C_hor_from_deck)[0] * RAD2ASEC
+                d = rotvec(att_ref.C_hor_from_deck.T @ att.C_hor_from_deck) * RAD2ASEC
                 C_ds = c.installation.C_deck_from_sensor
                 C_rs = configs_used[ref].installation.C_deck_from_sensor
                 P = (C_ds @ np.asarray(fr.horizontal.covariance_rad2, float) @ C_ds.T
@@ -509,7 +509,7 @@ class MountEstimator:
                 omega = motion.omega_at(t_s) * RAD2ASEC * 1e-3                    # arcsec per ms
                 applied_phi = np.zeros(3)
                 if c.installation is not self.configs[k].installation:         # flexed: C_eff = Exp(phi) C
-                    applied_phi = rotvecs(C_ds @ self.configs[k].installation.C_deck_from_sensor.T)[0] * RAD2ASEC
+                    applied_phi = rotvec(C_ds @ self.configs[k].installation.C_deck_from_sensor.T) * RAD2ASEC
                 y = d + applied_phi + omega * (shifts_s[k] * 1e3)
                 if np.all(np.isfinite(y)) and np.all(np.isfinite(P)):
                     tr.add(t_s, y, np.linalg.inv(P), a, omega)
