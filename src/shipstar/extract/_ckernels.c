@@ -16,6 +16,7 @@
  *   local_max         candidates that are the maximum of their 3 x 3 neighbourhood
  *   neighbours        the 8 neighbours' values of pixels
  *   tap_sum           the line filter's sum of shifted images, tile by tile
+ *   line_filter       the whole line filter from the frame, row by row
  *   box3              3 x 3 mean of a float32 window (trails, _artifacts)
  *   label_runs        8- (or 4-) connected components of sorted candidate pixels (union-find on runs)
  *   suppress          greedy suppression of peaks within a stronger peak's streak footprint
@@ -844,6 +845,171 @@ static PyObject *py_tap_sum(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+/* ------------------------------------------------------------------ the whole line filter */
+
+/* line_filter(image, type, H, W, fill, minor_is_row, across_px, pad, terms (T, 3) i8 [source,
+ * oy, ox], n_terms, kinds (K, 2) i8 [dy, dx], K, across (H + 2 pad, W + 2 pad) work, out (H, W),
+ * is_double): _matched.line_filter's sum in one call, the same sums in the same order: the
+ * pixels cast to the sum type (fill off the image), across[p] = ((P[p - e] + P[p + e]) + P[p])
+ * + P[p + 2e] + P[p - 2e] ... over the across half-width (e one step across the smear), then
+ * out[p] = the terms in order: source 0 across[p + o], source 1 + j the pair (across[p + o] +
+ * across[p + o + d_j]) of kind j.  Row by row (the rows a term reads stay in the cache); the
+ * loops are small functions of their own, which the compiler vectorises. */
+#define LF_CAST(TS, TT, SUF, PT)                                                                        \
+    static __attribute__((noinline)) void lf_cast_##TS##_##SUF(const PT *restrict r, TT *restrict d,    \
+                                                               Py_ssize_t n) {                     \
+        for (Py_ssize_t x = 0; x < n; x++) d[x] = (TT)r[x];                                             \
+    }
+#define LF_CASTS(TS, TT)                                                                                \
+    LF_CAST(TS, TT, u8, uint8_t) LF_CAST(TS, TT, i8, int8_t) LF_CAST(TS, TT, u16, uint16_t)             \
+    LF_CAST(TS, TT, i16, int16_t) LF_CAST(TS, TT, u32, uint32_t) LF_CAST(TS, TT, i32, int32_t)          \
+    LF_CAST(TS, TT, u64, uint64_t) LF_CAST(TS, TT, i64, int64_t) LF_CAST(TS, TT, f32, float)            \
+    LF_CAST(TS, TT, f64, double)
+LF_CASTS(f, float)
+LF_CASTS(d, double)
+#define LF_CAST_ROW(TS, SUF, PT) lf_cast_##TS##_##SUF((const PT *)img + y * W, d, W)
+
+#define LF_VEC(TS, TT)                                                                                  \
+    static __attribute__((noinline)) void lf_sum3_##TS(TT *restrict a, const TT *restrict x,             \
+                                                       const TT *restrict y, const TT *restrict z,       \
+                                                       Py_ssize_t n) {                                   \
+        for (Py_ssize_t i = 0; i < n; i++) a[i] = (x[i] + y[i]) + z[i];                                 \
+    }                                                                                                   \
+    static __attribute__((noinline)) void lf_add_##TS(TT *restrict a, const TT *restrict x, Py_ssize_t n) { \
+        for (Py_ssize_t i = 0; i < n; i++) a[i] += x[i];                                                \
+    }                                                                                                   \
+    static __attribute__((noinline)) void lf_add2_##TS(TT *restrict a, const TT *restrict x,             \
+                                                       const TT *restrict y, Py_ssize_t n) {             \
+        for (Py_ssize_t i = 0; i < n; i++) a[i] = (a[i] + x[i]) + y[i];                                 \
+    }                                                                                                   \
+    static __attribute__((noinline)) void lf_pair_##TS(TT *restrict a, const TT *restrict x,             \
+                                                       const TT *restrict y, Py_ssize_t n) {             \
+        for (Py_ssize_t i = 0; i < n; i++) a[i] = x[i] + y[i];                                          \
+    }                                                                                                   \
+    static __attribute__((noinline)) void lf_add_pair_##TS(TT *restrict a, const TT *restrict x,         \
+                                                           const TT *restrict y, Py_ssize_t n) {         \
+        for (Py_ssize_t i = 0; i < n; i++) a[i] += x[i] + y[i];                                         \
+    }
+LF_VEC(f, float)
+LF_VEC(d, double)
+
+#define LINE_FILTER(TS, TT)                                                                             \
+    static void lf_row_##TS(const void *img, int t, Py_ssize_t H, Py_ssize_t W, Py_ssize_t y, Py_ssize_t pad,   \
+                            Py_ssize_t ext, TT fill, TT *dst) {                                         \
+        Py_ssize_t wp = W + 2 * pad;                                                                    \
+        if (y < 0 || y >= H) { for (Py_ssize_t c = 0; c < wp + 2 * ext; c++) dst[c] = fill; return; }   \
+        for (Py_ssize_t c = 0; c < ext + pad; c++) dst[c] = fill;                                       \
+        for (Py_ssize_t c = ext + pad + W; c < wp + 2 * ext; c++) dst[c] = fill;                        \
+        TT *d = dst + ext + pad;                                                                        \
+        switch (t) {                                                                                    \
+            case 0: LF_CAST_ROW(TS, u8, uint8_t); break;                                                \
+            case 1: LF_CAST_ROW(TS, i8, int8_t); break;                                                 \
+            case 2: LF_CAST_ROW(TS, u16, uint16_t); break;                                              \
+            case 3: LF_CAST_ROW(TS, i16, int16_t); break;                                               \
+            case 4: LF_CAST_ROW(TS, u32, uint32_t); break;                                              \
+            case 5: LF_CAST_ROW(TS, i32, int32_t); break;                                               \
+            case 6: LF_CAST_ROW(TS, u64, uint64_t); break;                                              \
+            case 7: LF_CAST_ROW(TS, i64, int64_t); break;                                               \
+            case 8: LF_CAST_ROW(TS, f32, float); break;                                                 \
+            default: LF_CAST_ROW(TS, f64, double); break;                                               \
+        }                                                                                               \
+    }                                                                                                   \
+    static int line_filter_##TS(const void *img, int t, Py_ssize_t H, Py_ssize_t W, double fill_d,      \
+                                int minor_is_row, Py_ssize_t w, Py_ssize_t pad, const int64_t *terms,   \
+                                Py_ssize_t n_terms, const int64_t *kinds, TT *A, TT *out) {             \
+        const TT fill = (TT)fill_d;                                                                     \
+        const Py_ssize_t wp = W + 2 * pad, hp = H + 2 * pad, ext = minor_is_row ? 0 : w;               \
+        const Py_ssize_t nrow = minor_is_row ? 2 * w + 1 : 1;                                          \
+        TT *rows = malloc(sizeof(TT) * (size_t)nrow * (size_t)(wp + 2 * ext));                          \
+        if (!rows) return -1;                                                                           \
+        for (Py_ssize_t pr = 0; pr < hp; pr++) {                                                        \
+            TT *restrict a = A + pr * wp;                                                               \
+            if (minor_is_row) {             /* e = one row: rows pr - w .. pr + w */                     \
+                for (Py_ssize_t j = 0; j < nrow; j++)                                                   \
+                    lf_row_##TS(img, t, H, W, pr - pad + j - w, pad, 0, fill, rows + j * wp);           \
+                const TT *restrict r0 = rows + w * wp;                                                  \
+                if (w == 0) { memcpy(a, r0, sizeof(TT) * (size_t)wp); continue; }                       \
+                const TT *restrict rm = r0 - wp, *restrict rp = r0 + wp;                                \
+                lf_sum3_##TS(a, rm, rp, r0, wp);                                                        \
+                for (Py_ssize_t j = 2; j <= w; j++) {                                                   \
+                    const TT *restrict up = r0 + j * wp, *restrict dn = r0 - j * wp;                    \
+                    lf_add_##TS(a, up, wp);                                                             \
+                    lf_add_##TS(a, dn, wp);                                                             \
+                }                                                                                       \
+            } else {                        /* e = one column: the padded row widened by w fills */      \
+                lf_row_##TS(img, t, H, W, pr - pad, pad, ext, fill, rows);                              \
+                const TT *restrict r0 = rows + ext;                                                     \
+                if (w == 0) { memcpy(a, r0, sizeof(TT) * (size_t)wp); continue; }                       \
+                lf_sum3_##TS(a, r0 - 1, r0 + 1, r0, wp);                                                \
+                for (Py_ssize_t j = 2; j <= w; j++)                                                     \
+                    lf_add2_##TS(a, r0 + j, r0 - j, wp);                                                \
+            }                                                                                           \
+        }                                                                                               \
+        free(rows);                                                                                     \
+        for (Py_ssize_t y = 0; y < H; y++) {    /* a pair's two taps added first, as the reference's  \
+                                                   pair images hold them */                             \
+            TT *o = out + y * W;                                                                        \
+            for (Py_ssize_t k = 0; k < n_terms; k++) {                                                  \
+                const int64_t *tm = terms + 3 * k;                                                      \
+                const TT *p = A + (y + pad + tm[1]) * wp + pad + tm[2];                                 \
+                if (tm[0]) {                                                                            \
+                    const TT *q = p + kinds[2 * (tm[0] - 1)] * wp + kinds[2 * (tm[0] - 1) + 1];         \
+                    if (k == 0) lf_pair_##TS(o, p, q, W);                                               \
+                    else lf_add_pair_##TS(o, p, q, W);                                                  \
+                } else if (k == 0) memcpy(o, p, sizeof(TT) * (size_t)W);                                \
+                else lf_add_##TS(o, p, W);                                                              \
+            }                                                                                           \
+        }                                                                                               \
+        return 0;                                                                                       \
+    }
+LINE_FILTER(f, float)
+LINE_FILTER(d, double)
+
+static PyObject *py_line_filter(PyObject *self, PyObject *args) {
+    Py_buffer ib, tb, kb, ab, ob;
+    Py_ssize_t h, w, across_px, pad, n_terms, n_kinds;
+    double fill;
+    int minor_is_row, is_double, rc = -1;
+    const char *code;
+    if (!PyArg_ParseTuple(args, "y*snndpnny*ny*nw*w*p", &ib, &code, &h, &w, &fill, &minor_is_row, &across_px,
+                          &pad, &tb, &n_terms, &kb, &n_kinds, &ab, &ob, &is_double))
+        return NULL;
+    int t = type_index(code);
+    size_t item = is_double ? sizeof(double) : sizeof(float);
+    int ok = t >= 0 && h > 0 && w > 0 && across_px >= 0 && pad > across_px && n_terms > 0 && n_kinds >= 0
+             && tb.len == (Py_ssize_t)(3 * n_terms * sizeof(int64_t))
+             && kb.len >= (Py_ssize_t)(2 * n_kinds * sizeof(int64_t))
+             && ab.len == (Py_ssize_t)((size_t)(h + 2 * pad) * (size_t)(w + 2 * pad) * item)
+             && ob.len == (Py_ssize_t)((size_t)h * (size_t)w * item);
+    if (ok) {                                       /* every tap inside the padded frame */
+        const int64_t *tm = tb.buf, *kd = kb.buf;
+        for (Py_ssize_t k = 0; k < n_terms && ok; k++) {
+            int64_t s_ = tm[3 * k], oy = tm[3 * k + 1], ox = tm[3 * k + 2];
+            ok = s_ >= 0 && s_ <= n_kinds;
+            if (ok) {
+                int64_t dy = s_ ? kd[2 * (s_ - 1)] : 0, dx = s_ ? kd[2 * (s_ - 1) + 1] : 0;
+                ok = llabs(oy) <= pad && llabs(ox) <= pad && llabs(oy + dy) <= pad && llabs(ox + dx) <= pad;
+            }
+        }
+    }
+    if (ok) {
+        Py_BEGIN_ALLOW_THREADS
+        rc = is_double ? line_filter_d(ib.buf, t, h, w, fill, minor_is_row, across_px, pad, tb.buf, n_terms, kb.buf,
+                                       ab.buf, ob.buf)
+                       : line_filter_f(ib.buf, t, h, w, fill, minor_is_row, across_px, pad, tb.buf, n_terms, kb.buf,
+                                       ab.buf, ob.buf);
+        Py_END_ALLOW_THREADS
+    }
+    PyBuffer_Release(&ib); PyBuffer_Release(&tb); PyBuffer_Release(&kb); PyBuffer_Release(&ab);
+    PyBuffer_Release(&ob);
+    if (!ok) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "line_filter: bad sizes or terms");
+        return NULL;
+    }
+    if (rc < 0) return PyErr_NoMemory();
+    Py_RETURN_NONE;
+}
+
 /* ------------------------------------------------------------------ 3 x 3 box mean */
 
 /* box3(image (h, w) f4, out (h, w) f4, h, w): the 3 x 3 mean with edges extended, as
@@ -1004,6 +1170,7 @@ static PyMethodDef methods[] = {
     {"local_max", py_local_max, METH_VARARGS, "Candidates that are the maximum of their 3 x 3 neighbourhood."},
     {"neighbours", py_neighbours, METH_VARARGS, "The 8 neighbours of pixels and whether they are inside."},
     {"tap_sum", py_tap_sum, METH_VARARGS, "The line filter's shifted sums, tile by tile."},
+    {"line_filter", py_line_filter, METH_VARARGS, "The whole line filter, row by row."},
     {"box3", py_box3, METH_VARARGS, "3 x 3 mean of a float32 image, edges extended."},
     {"label_runs", py_label_runs, METH_VARARGS, "8-connected components of sorted candidate pixels."},
     {"suppress", py_suppress, METH_VARARGS, "Greedy suppression of peaks in a stronger one's footprint."},

@@ -14,6 +14,7 @@ Each wrapper hands its C kernel C-contiguous arrays of the dtypes it reads and w
 - :func:`candidates`, :func:`local_max`, :func:`neighbours`: detection on the pixels
   above a block-wise level (any integer or float pixel type);
 - :func:`tap_sum`: the line filter's sum of shifted partial-sum images;
+- :func:`line_filter`: the whole line filter from the frame, row by row;
 - :func:`box3`: the 3 x 3 mean of a float32 window (trails);
 - :func:`label_runs`: 8- (or 4-) connected components of sorted candidate pixels, numbered in
   the order of their first pixel (as ``scipy.sparse.csgraph.connected_components`` on
@@ -30,7 +31,7 @@ from shipstar.extract import _ckernels
 from shipstar.extract._scratch import scratch
 
 __all__ = ["streak_equations", "streak_fit", "gauss_fit", "gauss_normal", "block_stats", "median3", "mesh_at",
-           "candidates", "local_max", "neighbours", "tap_sum", "box3", "label_runs", "suppress", "erf"]
+           "candidates", "local_max", "neighbours", "tap_sum", "line_filter", "box3", "label_runs", "suppress", "erf"]
 
 _TABLE_STEPS = 1024
 
@@ -245,6 +246,26 @@ def tap_sum(terms, out, span: int):
         raise ValueError("tap_sum's shifts reach past a source")
     padded = sources + [sources[0]] * (3 - len(sources))
     _ckernels.tap_sum(*padded, table, out, int(span), len(terms), dtype == np.float64)
+
+
+def line_filter(image, fill_value: float, minor_is_row: bool, across_px: int, pad: int, terms, kinds, out):
+    """The line filter of ``image`` (H, W) into ``out`` (H, W), float32 or float64 (its
+    dtype is the sum's): ``terms (T, 3)`` int64 ``[source, oy, ox]`` (source 0: the
+    partial sums across the smear, ``1 + j``: pairs of them of kind ``j``), ``kinds (K, 2)``
+    int64 ``[dy, dx]`` (the steps from a pair's first tap to its second), every
+    term within ``pad`` of the pixel (see ``_matched._terms``); ``minor_is_row``: one step
+    across the smear is one row."""
+    image, code = _pixels(image)
+    dtype = out.dtype
+    terms = np.ascontiguousarray(terms, dtype=np.int64)
+    kinds = np.ascontiguousarray(kinds, dtype=np.int64).reshape(-1, 2)
+    if (dtype not in (np.float32, np.float64) or out.shape != image.shape or not out.flags.c_contiguous
+            or terms.ndim != 2 or terms.shape[1] != 3 or not len(terms)):
+        raise ValueError("line_filter: bad arrays")
+    across = scratch("kernels.line_filter.across", (image.shape[0] + 2 * pad, image.shape[1] + 2 * pad), dtype)
+    _ckernels.line_filter(image, code, *image.shape, float(fill_value), bool(minor_is_row), int(across_px),
+                          int(pad), terms, len(terms), kinds if len(kinds) else np.zeros((1, 2), np.int64),
+                          len(kinds), across, out, dtype == np.float64)
 
 
 def label_runs(idx, width: int, *, diagonal: bool = True):
