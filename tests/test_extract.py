@@ -695,3 +695,20 @@ def test_compiled_detection_passes_match_numpy():
         np.testing.assert_array_equal(inside, np.isfinite(values) & np.isfinite(
             np.stack([padded[r + 1 + dr, c + 1 + dc] for dr in (-1, 0, 1) for dc in (-1, 0, 1) if (dr, dc) != (0, 0)],
                      axis=1)))
+
+
+def test_saturation_test_in_the_pixels_own_type_is_the_float_comparison():
+    """``at_or_above`` compares integer frames against ceil(level) in their own type (no
+    float64 copy of the frame): the same mask as ``image >= level`` for every integer
+    type, levels between, on and beyond the pixel values and the type's range."""
+    from shipstar.extract._detect import at_or_above
+
+    rng = np.random.default_rng(31)
+    for dtype in (np.uint8, np.int8, np.uint16, np.int16, np.uint32, np.int32, np.int64, np.float32, np.float64):
+        info = np.iinfo(dtype) if np.dtype(dtype).kind in "ui" else np.finfo(dtype)
+        lo, hi = (float(info.min), float(info.max)) if np.dtype(dtype).kind in "ui" else (-1e6, 1e6)
+        image = rng.uniform(max(lo, -1e6), min(hi, 1e6), (40, 30)).astype(dtype)
+        image.flat[:4] = [image.dtype.type(info.min), image.dtype.type(info.max), 0, 1]
+        for level in (lo - 1.0, lo, -0.5, 0.0, 0.25, 1.0, 254.5, 255.0, 4095.0, 65535.0, 65535.5, hi, hi + 1.0,
+                      float(image.flat[7]), float(image.flat[7]) + 0.5):
+            np.testing.assert_array_equal(at_or_above(image, level), image >= level, err_msg=f"{dtype} {level}")

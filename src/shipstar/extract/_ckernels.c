@@ -655,6 +655,13 @@ static PyObject *py_mesh_at(PyObject *self, PyObject *args) {
 /* One function per pixel type T (image and block levels of the same type, as
  * _detect._level_as gives them): candidates, local maxima, 3 x 3 neighbours. */
 #define DETECT_KERNELS(SUF, T)                                                                          \
+    /* whether any of n pixels exceeds t: a branch-free loop of its own, which the compiler     \
+       vectorises (most of a frame's block rows hold no candidate) */                            \
+    static __attribute__((noinline)) int any_above_##SUF(const T *restrict row, Py_ssize_t n, T t) {  \
+        int any = 0;                                                                                    \
+        for (Py_ssize_t j = 0; j < n; j++) any |= row[j] > t;                                           \
+        return any;                                                                                     \
+    }                                                                                                   \
     static Py_ssize_t candidates_##SUF(const T *img, const T *level, int64_t *out, Py_ssize_t h,      \
                                        Py_ssize_t w, Py_ssize_t block, Py_ssize_t nby, Py_ssize_t nbx) { \
         Py_ssize_t n = 0;                                                                               \
@@ -665,16 +672,9 @@ static PyObject *py_mesh_at(PyObject *self, PyObject *args) {
                 Py_ssize_t bc = c0 / block < nbx - 1 ? c0 / block : nbx - 1;                            \
                 Py_ssize_t c1 = (bc == nbx - 1 || c0 + block > w) ? w : c0 + block;                    \
                 T t = lv[bc];                                                                           \
-                Py_ssize_t c = c0;                                                                      \
-                for (; c + 16 <= c1; c += 16) {     /* a branch-free test of 16 pixels first */         \
-                    int any = 0;                                                                        \
-                    for (int j = 0; j < 16; j++) any |= row[c + j] > t;                                 \
-                    if (any)                                                                            \
-                        for (int j = 0; j < 16; j++)                                                    \
-                            if (row[c + j] > t) out[n++] = r * w + c + j;                               \
-                }                                                                                       \
-                for (; c < c1; c++)                                                                     \
-                    if (row[c] > t) out[n++] = r * w + c;                                               \
+                if (any_above_##SUF(row + c0, c1 - c0, t))                                              \
+                    for (Py_ssize_t c = c0; c < c1; c++)                                                \
+                        if (row[c] > t) out[n++] = r * w + c;                                           \
                 c0 = c1 - block;                                                                        \
             }                                                                                           \
         }                                                                                               \

@@ -13,6 +13,7 @@ import numpy as np
 
 from shipstar.errors import ShipstarError
 from shipstar.extract._background import estimate_mesh
+from shipstar.extract._detect import at_or_above
 from shipstar.extract._point import component_stats, detect_objects, measure_points
 from shipstar.extract._result import Extraction
 from shipstar.extract._smear import STREAK_MIN_PX, frame_smear
@@ -165,7 +166,7 @@ def extract_stars(image, *, threshold_sigma=5.0, max_stars=None, refine="gaussia
     hint = _check_smear(smear_px)
     arr, quantum = _prepare(image)
     saturation = _saturation_level(arr, saturation_adu)
-    n_sat = int(np.count_nonzero(arr >= saturation)) if math.isfinite(saturation) else 0
+    n_sat = int(np.count_nonzero(at_or_above(arr, saturation))) if math.isfinite(saturation) else 0
     if n_sat >= OVEREXPOSED_FRACTION * arr.size:
         raise ShipstarError(f"frame is overexposed: {100.0 * n_sat / arr.size:.0f}% of its pixels are saturated")
     mesh = estimate_mesh(arr, quantum_adu=quantum)
@@ -180,7 +181,7 @@ def extract_stars(image, *, threshold_sigma=5.0, max_stars=None, refine="gaussia
         return _result(res, mesh, sigma, arr.shape, max_stars, hint)
     peaks, labels_of_peaks, idx, labels = detect_objects(arr, mesh, float(threshold_sigma))
     stats = component_stats(arr, mesh, idx, labels, labels_of_peaks, saturation)
-    sat_mask = (arr >= saturation) if (hint is None and n_sat) else None
+    sat_mask = at_or_above(arr, saturation) if (hint is None and n_sat) else None
     smear, sigma_s, gain_s = frame_smear(arr, mesh, stats, hint, sigma_given, inv_gain, sat_mask)
     if smear is not None:
         from shipstar.extract._smeared import extract_smeared

@@ -7,16 +7,35 @@ flat indices, so the cost does not grow with the frame beyond one comparison pas
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from shipstar.extract._kernels import candidates, label_runs, local_max, neighbours
 
 __all__ = ["candidate_pixels", "local_maxima", "box_sums", "neighbour_values", "EDGE_NEIGHBOURS", "components",
-           "sum_dtype"]
+           "sum_dtype", "at_or_above"]
 
 #: Float frames with values beyond this (magnitude) are summed in float64: float32 sums of
 #: many such pixels (line filter, binning) would overflow (the entry check allows 3e38).
 _FLOAT32_SUM_MAX_ADU = 1e30
+
+
+def at_or_above(image, level: float) -> np.ndarray:
+    """``image >= level`` (bool, the image's shape) for a finite ``level``, compared in an
+    integer image's own type against ``ceil(level)`` (the same answer for every integer
+    pixel): ``image >= level`` with a Python float casts a whole 16-bit frame to float64
+    first (~1 ms a 1024 x 1024 frame, 10 x the comparison).  Integers of 8 bytes keep the
+    float comparison, whose float64 cast rounds their large values (the answer NumPy gives)."""
+    if image.dtype.kind in "ui" and image.dtype.itemsize <= 4:   # every value exact in float64
+        info = np.iinfo(image.dtype)
+        top = math.ceil(level)
+        if top <= info.min:
+            return np.ones(image.shape, dtype=bool)
+        if top > info.max:
+            return np.zeros(image.shape, dtype=bool)
+        return image >= image.dtype.type(top)
+    return image >= level
 
 
 def sum_dtype(image):

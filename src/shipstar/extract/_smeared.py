@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from shipstar.extract._detect import candidate_pixels, local_maxima
+from shipstar.extract._detect import at_or_above, candidate_pixels, local_maxima
 from shipstar.extract._fit import _spd_inverse
 from shipstar.extract._matched import LineFilter, detect_streaks
 from shipstar.extract._point import SEGMENT_SIGMA, SHARPEST_PSF_SIGMA_PX, bright_objects, too_sharp
@@ -240,7 +240,7 @@ def extract_smeared(arr, mesh, stats, smear, sigma, inv_gain, saturation, thresh
     (:func:`shipstar.extract._point.component_stats` of the frame's objects; sigma 1 px
     when none can be fitted); ``stats`` is not used when both are given.
     """
-    saturated = arr >= saturation if math.isfinite(saturation) else np.zeros(arr.shape, dtype=bool)
+    saturated = at_or_above(arr, saturation) if math.isfinite(saturation) else np.zeros(arr.shape, dtype=bool)
     segment_sigma = min(SEGMENT_SIGMA, threshold_sigma)
 
     def sharp(psf_sigma, gain):
