@@ -50,12 +50,9 @@ class Mesh:
 
     def on_grid(self, x_px, y_px):
         """Bilinear background and noise (len(y_px), len(x_px)) on the grid of columns ``x_px`` and rows ``y_px``."""
-        out = []
-        for grid in (self.bg, self.noise):
-            ny, nx = grid.shape
-            wy, wx = (_interpolation_matrix(*self._weights(c, n), n) for c, n in ((y_px, ny), (x_px, nx)))
-            out.append(wy @ grid @ wx.T)
-        return out[0], out[1]
+        ny, nx = self.bg.shape                  # the noise's grid is the same
+        wy, wx = (_interpolation_matrix(*self._weights(c, n), n) for c, n in ((y_px, ny), (x_px, nx)))
+        return wy @ self.bg @ wx.T, wy @ self.noise @ wx.T
 
     @property
     def background_adu(self) -> float:
@@ -103,14 +100,15 @@ def _block_samples(image, block_px, step):
     return sub.reshape(n_by, b, n_bx, b).swapaxes(1, 2).reshape(n_by, n_bx, b * b)    # a copy, image's dtype
 
 
-def _value_step(samples):
-    """Smallest difference between distinct sample values of a block: the quantisation step
-    of a float frame holding integer counts (1), scaled counts (e.g. 1/4096) or none (~0).
+def _value_step(sorted_samples):
+    """Smallest difference between distinct sample values of a block (samples sorted along
+    the last axis): the quantisation step of a float frame holding integer counts (1),
+    scaled counts (e.g. 1/4096) or none (~0).
 
     Without it a block of a coarsely quantised frame whose samples mostly share one value
     would get a zero MAD, hence a zero clip and a zero noise.
     """
-    diff = np.diff(np.sort(samples, axis=-1), axis=-1)
+    diff = np.diff(sorted_samples, axis=-1)
     step = diff[diff > 0]
     return float(step.min()) if step.size else 0.0
 
@@ -138,10 +136,12 @@ def estimate_mesh(image, *, block_px=32, quantum_adu=0.0, box_noise=True) -> Mes
     block_px = int(max(4, min(block_px, min(height, width) // 2)))
     step = max(1, block_px // 8)
     block_px = (block_px // step) * step
-    samples = _block_samples(image, block_px, step).astype(np.float64)    # exact for any pixel value
+    # sorted in the image's own type (NumPy's SIMD sort: 7 x faster on 16-bit pixels than on
+    # float64), then widened: the conversion is monotonic, so the same sorted values
+    samples = np.sort(_block_samples(image, block_px, step), axis=-1).astype(np.float64)
     if quantum_adu == 0.0:                  # float frame: its step, if its values come in steps
         quantum_adu = _value_step(samples)
-    med, _, rms = block_stats(np.sort(samples, axis=-1), quantum_adu)   # NumPy's SIMD sort, then C
+    med, _, rms = block_stats(samples, quantum_adu)                     # then C
     floor = max(quantum_adu / np.sqrt(12.0), 1e-9 * max(1.0, float(np.max(np.abs(med)))))
     noise = np.maximum(rms * _CLIPPED_RMS_TO_SIGMA, floor)
     if min(med.shape) >= 3:

@@ -655,27 +655,32 @@ static PyObject *py_mesh_at(PyObject *self, PyObject *args) {
 /* One function per pixel type T (image and block levels of the same type, as
  * _detect._level_as gives them): candidates, local maxima, 3 x 3 neighbours. */
 #define DETECT_KERNELS(SUF, T)                                                                          \
-    /* whether any of n pixels exceeds t: a branch-free loop of its own, which the compiler     \
-       vectorises (most of a frame's block rows hold no candidate) */                            \
-    static __attribute__((noinline)) int any_above_##SUF(const T *restrict row, Py_ssize_t n, T t) {  \
-        int any = 0;                                                                                    \
-        for (Py_ssize_t j = 0; j < n; j++) any |= row[j] > t;                                           \
-        return any;                                                                                     \
+    /* mask[c] = row[c] > thr[c]: a branch-free loop of its own, which the compiler vectorises */      \
+    static __attribute__((noinline)) void above_##SUF(const T *restrict row, const T *restrict thr,      \
+                                                      uint8_t *restrict mask, Py_ssize_t n) {            \
+        for (Py_ssize_t j = 0; j < n; j++) mask[j] = row[j] > thr[j];                                   \
     }                                                                                                   \
+    /* Row by row: each pixel against its block's level (the row of levels expanded once per block     \
+       row), into a byte mask read 8 bytes at a time; most words hold no candidate. */                 \
     static Py_ssize_t candidates_##SUF(const T *img, const T *level, int64_t *out, Py_ssize_t h,      \
-                                       Py_ssize_t w, Py_ssize_t block, Py_ssize_t nby, Py_ssize_t nbx) { \
-        Py_ssize_t n = 0;                                                                               \
+                                       Py_ssize_t w, Py_ssize_t block, Py_ssize_t nby, Py_ssize_t nbx, \
+                                       T *thr, uint8_t *mask) {                                         \
+        Py_ssize_t n = 0, band = -1;                                                                    \
+        for (Py_ssize_t j = w; j < w + 8; j++) mask[j] = 0;                                             \
         for (Py_ssize_t r = 0; r < h; r++) {                                                            \
             Py_ssize_t br = r / block < nby - 1 ? r / block : nby - 1;                                  \
-            const T *lv = level + br * nbx, *row = img + r * w;                                         \
-            for (Py_ssize_t c0 = 0; c0 < w; c0 += block) {                                              \
-                Py_ssize_t bc = c0 / block < nbx - 1 ? c0 / block : nbx - 1;                            \
-                Py_ssize_t c1 = (bc == nbx - 1 || c0 + block > w) ? w : c0 + block;                    \
-                T t = lv[bc];                                                                           \
-                if (any_above_##SUF(row + c0, c1 - c0, t))                                              \
-                    for (Py_ssize_t c = c0; c < c1; c++)                                                \
-                        if (row[c] > t) out[n++] = r * w + c;                                           \
-                c0 = c1 - block;                                                                        \
+            if (br != band) {                                                                           \
+                for (Py_ssize_t c = 0; c < w; c++)                                                      \
+                    thr[c] = level[br * nbx + (c / block < nbx - 1 ? c / block : nbx - 1)];             \
+                band = br;                                                                              \
+            }                                                                                           \
+            above_##SUF(img + r * w, thr, mask, w);                                                     \
+            for (Py_ssize_t c = 0; c < w; c += 8) {                                                     \
+                uint64_t word;                                                                          \
+                memcpy(&word, mask + c, 8);                                                             \
+                if (!word) continue;                                                                    \
+                for (Py_ssize_t j = c; j < c + 8 && j < w; j++)                                         \
+                    if (mask[j]) out[n++] = r * w + j;                                                  \
             }                                                                                           \
         }                                                                                               \
         return n;                                                                                       \
@@ -753,13 +758,26 @@ static PyObject *py_candidates(PyObject *self, PyObject *args) {
     const char *code;
     if (!PyArg_ParseTuple(args, "y*y*w*nnnnns", &ib, &lb, &ob, &h, &w, &block, &nby, &nbx, &code)) return NULL;
     int t = type_index(code);
+    void *thr = NULL;
+    uint8_t *mask = NULL;
+    if (t >= 0) {
+        thr = malloc((size_t)(w > 0 ? w : 1) * 8);          /* a row of levels (items of <= 8 bytes) */
+        mask = malloc((size_t)w + 8);
+        if (thr == NULL || mask == NULL) {
+            PyErr_NoMemory();
+            t = -1;
+        }
+    }
     if (t >= 0) {
         Py_BEGIN_ALLOW_THREADS
-#define CALL(SUF, T) n = candidates_##SUF((const T *)ib.buf, (const T *)lb.buf, (int64_t *)ob.buf, h, w, block, nby, nbx)
+#define CALL(SUF, T) n = candidates_##SUF((const T *)ib.buf, (const T *)lb.buf, (int64_t *)ob.buf, h, w, block, nby, nbx, \
+                                          (T *)thr, mask)
         DISPATCH(t, CALL)
 #undef CALL
         Py_END_ALLOW_THREADS
     }
+    free(thr);
+    free(mask);
     PyBuffer_Release(&ib); PyBuffer_Release(&lb); PyBuffer_Release(&ob);
     if (t < 0) return NULL;
     return PyLong_FromSsize_t(n);

@@ -64,20 +64,27 @@ def _mask_bad_pixels(arr):
     return out
 
 
-def _saturation_level(arr, saturation_adu):
-    """Given level, or for integer data the top of the ADC range the data fit in (8..16 bits)."""
+def _saturation(arr, saturation_adu):
+    """``(level, n)``: the saturation level -- the given one, or for integer data the top of
+    the ADC range the data fit in (8..32 bits) -- and the number of pixels at or above it.
+
+    One pass over the frame (its maximum) when nothing reaches the level, as in nearly
+    every frame: the count needs a second only when the maximum does.
+    """
     if saturation_adu is not None:
-        value = float(saturation_adu)
-        if not math.isfinite(value):
+        level = float(saturation_adu)
+        if not math.isfinite(level):
             raise ShipstarError(f"saturation_adu must be finite, got {saturation_adu}")
-        return value
-    if arr.dtype.kind == "f":
-        return math.inf
-    top = int(arr.max())
-    for bits in (8, 10, 12, 14, 16, 20, 24, 32):
-        if top <= (1 << bits) - 1:
-            return float((1 << bits) - 1)
-    return float(top)
+    elif arr.dtype.kind == "f":
+        return math.inf, 0
+    else:
+        top = int(arr.max())
+        level = next((float((1 << bits) - 1) for bits in (8, 10, 12, 14, 16, 20, 24, 32) if top <= (1 << bits) - 1),
+                     float(top))
+        return level, (int(np.count_nonzero(arr == arr.dtype.type(top))) if top == level else 0)
+    if float(arr.max()) < level:            # (NaN and inf were replaced by _prepare)
+        return level, 0
+    return level, int(np.count_nonzero(at_or_above(arr, level)))
 
 
 def _check_args(threshold_sigma, max_stars, refine, psf_sigma_px, gain_e_per_adu):
@@ -165,8 +172,7 @@ def extract_stars(image, *, threshold_sigma=5.0, max_stars=None, refine="gaussia
     _check_args(threshold_sigma, max_stars, refine, psf_sigma_px, gain_e_per_adu)
     hint = _check_smear(smear_px)
     arr, quantum = _prepare(image)
-    saturation = _saturation_level(arr, saturation_adu)
-    n_sat = int(np.count_nonzero(at_or_above(arr, saturation))) if math.isfinite(saturation) else 0
+    saturation, n_sat = _saturation(arr, saturation_adu)
     if n_sat >= OVEREXPOSED_FRACTION * arr.size:
         raise ShipstarError(f"frame is overexposed: {100.0 * n_sat / arr.size:.0f}% of its pixels are saturated")
     mesh = estimate_mesh(arr, quantum_adu=quantum)
@@ -176,7 +182,7 @@ def extract_stars(image, *, threshold_sigma=5.0, max_stars=None, refine="gaussia
         # everything known: straight to the streaks (no segmentation of the frame needed)
         from shipstar.extract._smeared import extract_smeared   # (not loaded for point sources)
 
-        res, sigma = extract_smeared(arr, mesh, None, hint, sigma_given, inv_gain, saturation,
+        res, sigma = extract_smeared(arr, mesh, None, hint, sigma_given, inv_gain, saturation if n_sat else math.inf,
                                      float(threshold_sigma), refine, refine_smear=True)
         return _result(res, mesh, sigma, arr.shape, max_stars, hint)
     peaks, labels_of_peaks, idx, labels = detect_objects(arr, mesh, float(threshold_sigma))
@@ -186,8 +192,8 @@ def extract_stars(image, *, threshold_sigma=5.0, max_stars=None, refine="gaussia
     if smear is not None:
         from shipstar.extract._smeared import extract_smeared
 
-        res, sigma = extract_smeared(arr, mesh, stats, smear, sigma_s, gain_s, saturation, float(threshold_sigma),
-                                     refine, refine_smear=hint is not None)
+        res, sigma = extract_smeared(arr, mesh, stats, smear, sigma_s, gain_s, saturation if n_sat else math.inf,
+                                     float(threshold_sigma), refine, refine_smear=hint is not None)
         return _result(res, mesh, sigma, arr.shape, max_stars, smear)
     res, sigma = measure_points(arr, mesh, peaks, stats, refine, psf_sigma_px, inv_gain)
     return _result(res, mesh, sigma, arr.shape, max_stars, np.zeros(2))
