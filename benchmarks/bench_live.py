@@ -318,7 +318,6 @@ def main() -> int:
     summary = json.loads(out)
 
     single = [(t, r) for t, r in rx.rows if r["method"] == "single"]
-    fused = [(t, r) for t, r in rx.rows if r["method"] != "single"]
     lat_single = [(t - appeared[(r["sensor"], r["frame"])]) * 1000 for t, r in single
                   if (r["sensor"], r["frame"]) in appeared]
     lat_fused, group = [], []                 # an epoch's rows: its single rows, then seed-rule and joint

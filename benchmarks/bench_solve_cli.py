@@ -41,19 +41,11 @@ import tempfile
 import time
 from pathlib import Path
 
+from _procenv import command_env
+
 TARGET_S = 0.3
 IMAGES = (("orion2.jpg", 10.0), ("virgo.jpg", 20.0))
 A1_FOV_DEG = 8.6
-
-
-def _env(bytecode_dir):
-    env = dict(os.environ)
-    env.setdefault("OMP_NUM_THREADS", "1")
-    env.setdefault("OPENBLAS_NUM_THREADS", "1")
-    if bytecode_dir is not None:
-        env.pop("PYTHONDONTWRITEBYTECODE", None)
-        env["PYTHONPYCACHEPREFIX"] = str(bytecode_dir)
-    return env
 
 
 def _cpu_s() -> float:
@@ -95,7 +87,7 @@ def main() -> int:
 
     with tempfile.TemporaryDirectory(prefix="bench_solve_cli_") as tmpname:
         tmp = Path(tmpname)
-        env = _env(None if opts.no_bytecode_cache else tmp / "pycache")
+        env = command_env(None if opts.no_bytecode_cache else tmp / "pycache")
         py = [sys.executable]
         cases = []
         for name, fov in IMAGES:
