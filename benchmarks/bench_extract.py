@@ -173,7 +173,8 @@ def run_photutils(image, camera):
         found = DAOStarFinder(fwhm=2.355 * camera.psf_sigma_px, threshold=5.0 * std)(sub)
     if found is None:
         return np.zeros((0, 2)), np.zeros(0, dtype=bool)
-    x0, y0 = np.asarray(found["xcentroid"]), np.asarray(found["ycentroid"])
+    names = ("x_centroid", "y_centroid") if "x_centroid" in found.colnames else ("xcentroid", "ycentroid")
+    x0, y0 = (np.asarray(found[n]) for n in names)       # photutils >= 3 renamed them (the old names warn)
     inside = (x0 >= 0) & (x0 <= data.shape[1] - 1) & (y0 >= 0) & (y0 <= data.shape[0] - 1)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")                  # "fit may not have converged" on faint stars
