@@ -252,6 +252,19 @@ def test_one_matrix_angle_paths_agree_with_the_array_paths():
             assert np.array_equal(ship_angles_jacobian(C), ship_angles_jacobian(C[None])[0])
 
 
+def test_one_matrix_jacobian_at_exact_gimbal_lock_is_the_array_paths():
+    """At exact gimbal lock (cos(pitch) exactly 0) the heading and roll rows divide by
+    zero: one matrix gives what the array path gives (inf and NaN, NumPy's warnings),
+    not the plain-float path's ZeroDivisionError."""
+    from shipstar.ship import ship_angles_jacobian
+
+    C = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])      # pitch +90 deg, exactly
+    with np.errstate(divide="ignore", invalid="ignore"):
+        one, batch = ship_angles_jacobian(C), ship_angles_jacobian(C[None])[0]
+    np.testing.assert_array_equal(one, batch)
+    assert not np.all(np.isfinite(one))
+
+
 def test_installation_matrix_is_made_once_and_read_only():
     from shipstar.calibrate.installation import Installation
 

@@ -137,7 +137,9 @@ def ship_angles_jacobian(C_hor_from_deck) -> np.ndarray:
     """
     C = np.asarray(C_hor_from_deck, float)
     if C.shape == (3, 3):
-        return _angles_jacobian_one(C)
+        J = _angles_jacobian_one(C)
+        if J is not None:
+            return J
     # dC = C @ [phi x]:   dC[:, 0] = C[:,1] phi_z - C[:,2] phi_y
     #                     dC[:, 1] = C[:,2] phi_x - C[:,0] phi_z
     #                     dC[:, 2] = C[:,0] phi_y - C[:,1] phi_x
@@ -156,14 +158,17 @@ def ship_angles_jacobian(C_hor_from_deck) -> np.ndarray:
     return np.stack([dK, dpsi, dtheta], axis=-2)
 
 
-def _angles_jacobian_one(C) -> np.ndarray:
+def _angles_jacobian_one(C) -> np.ndarray | None:
     """:func:`ship_angles_jacobian` of one (3, 3) matrix in plain floats: the array
     path's operations on its nonzero terms, in its order (the fusion makes several every
-    epoch)."""
+    epoch); None at exact gimbal lock, whose infinite and undefined rows are the array
+    path's (Python's floats raise on a division by zero)."""
     (c00, c01, c02), (c10, c11, c12), (c20, c21, c22) = C.tolist()
     h2 = c00 * c00 + c20 * c20
-    h = math.sqrt(h2)
     r2 = c11 * c11 + c12 * c12
+    if h2 == 0.0 or r2 == 0.0:
+        return None
+    h = math.sqrt(h2)
     # dcol0 = [[0, -c02, c01], [0, -c12, c11], [0, -c22, c21]] (rows: C's rows; columns: phi)
     # dcol1 row 1 = [c12, 0, -c10]; dcol2 row 1 = [-c11, c10, 0]
     dK = [(c00 * 0.0 - c20 * 0.0) / h2, (c00 * -c22 - c20 * -c02) / h2, (c00 * c21 - c20 * c01) / h2]
