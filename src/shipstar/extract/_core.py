@@ -175,6 +175,8 @@ def extract_stars(image, *, threshold_sigma=5.0, max_stars=None, refine="gaussia
     saturation, n_sat = _saturation(arr, saturation_adu)
     if n_sat >= OVEREXPOSED_FRACTION * arr.size:
         raise ShipstarError(f"frame is overexposed: {100.0 * n_sat / arr.size:.0f}% of its pixels are saturated")
+    if not n_sat:                           # no pixel reaches it: nothing to test against it below
+        saturation = math.inf
     mesh = estimate_mesh(arr, quantum_adu=quantum)
     inv_gain = None if gain_e_per_adu is None else 1.0 / float(gain_e_per_adu)
     sigma_given = None if psf_sigma_px is None else float(psf_sigma_px)
@@ -182,7 +184,7 @@ def extract_stars(image, *, threshold_sigma=5.0, max_stars=None, refine="gaussia
         # everything known: straight to the streaks (no segmentation of the frame needed)
         from shipstar.extract._smeared import extract_smeared   # (not loaded for point sources)
 
-        res, sigma = extract_smeared(arr, mesh, None, hint, sigma_given, inv_gain, saturation if n_sat else math.inf,
+        res, sigma = extract_smeared(arr, mesh, None, hint, sigma_given, inv_gain, saturation,
                                      float(threshold_sigma), refine, refine_smear=True)
         return _result(res, mesh, sigma, arr.shape, max_stars, hint)
     peaks, labels_of_peaks, idx, labels = detect_objects(arr, mesh, float(threshold_sigma))
@@ -192,8 +194,8 @@ def extract_stars(image, *, threshold_sigma=5.0, max_stars=None, refine="gaussia
     if smear is not None:
         from shipstar.extract._smeared import extract_smeared
 
-        res, sigma = extract_smeared(arr, mesh, stats, smear, sigma_s, gain_s, saturation if n_sat else math.inf,
-                                     float(threshold_sigma), refine, refine_smear=hint is not None)
+        res, sigma = extract_smeared(arr, mesh, stats, smear, sigma_s, gain_s, saturation, float(threshold_sigma),
+                                     refine, refine_smear=hint is not None)
         return _result(res, mesh, sigma, arr.shape, max_stars, smear)
     res, sigma = measure_points(arr, mesh, peaks, stats, refine, psf_sigma_px, inv_gain)
     return _result(res, mesh, sigma, arr.shape, max_stars, np.zeros(2))
