@@ -275,7 +275,7 @@ def fuse_joint(sensors: Sequence[SensorStars], *, reject_outliers: bool = True) 
 
     if len(sensors) == 0:
         return ShipAttitude.failed("no sensor data", "joint")
-    w_deck, v_hor, sigma, info = [], [], [], []
+    w_deck, v_hor, sigma = [], [], []
     for s in sensors:
         w = np.atleast_2d(np.asarray(s.w_sensor, float))
         v = np.atleast_2d(np.asarray(s.v_hor, float))
@@ -283,25 +283,37 @@ def fuse_joint(sensors: Sequence[SensorStars], *, reject_outliers: bool = True) 
             raise ShipstarError(f"sensor star arrays must both be (N, 3), got {w.shape} and {v.shape}")
         w_deck.append(w @ np.asarray(s.C_deck_from_sensor, float).T)
         v_hor.append(v)
-        sig = np.broadcast_to(np.asarray(s.sigma_rad, float), (w.shape[0],))
-        sigma.append(sig)
-        R = np.asarray(s.C_deck_from_sensor, float)
-        if s.info_per_rad2 is None:            # isotropic: sigma^-2 (I - w w^T)
-            wd = w_deck[-1] / np.linalg.norm(w_deck[-1], axis=1, keepdims=True)
-            info.append(sig[:, None, None] ** -2 * (np.eye(3) - wd[:, :, None] * wd[:, None, :]))
-        else:
-            info.append(R @ np.asarray(s.info_per_rad2, float) @ R.T)
+        sigma.append(np.broadcast_to(np.asarray(s.sigma_rad, float), (w.shape[0],)))
     w_all, v_all, sig_all = np.concatenate(w_deck), np.concatenate(v_hor), np.concatenate(sigma)
     anisotropic = any(s.info_per_rad2 is not None for s in sensors)
+    # the stars' information matrices (deck axes): given by the solver when anisotropic,
+    # needed besides only to eliminate mount errors (the common-mode term of isotropic
+    # stars uses their sigmas)
+    mounts = any(s.mount_covariance_rad2 is not None for s in sensors)
+    info = _deck_information(sensors, w_deck, sigma) if anisotropic or mounts else None
     sol = solve_attitude(w_all, v_all, sigma_rad=sig_all, reject_outliers=reject_outliers,
-                         info_per_rad2=np.concatenate(info) if anisotropic else None)
+                         info_per_rad2=info if anisotropic else None)
     if not sol.solved:
         return ShipAttitude.failed(sol.reason, "joint")
-    C_new, P_new = _with_mount_errors(sensors, sol, np.concatenate(w_deck), v_all, np.concatenate(info))
+    C_new, P_new = _with_mount_errors(sensors, sol, w_all, v_all, info)
     if C_new is not None:
         sol = replace(sol, C_ref_from_body=C_new, covariance_rad2=P_new)
-    cov = sol.covariance_rad2 + _common_mode_covariance(sensors, sol, np.concatenate(info), sig_all, w_all)
+    cov = sol.covariance_rad2 + _common_mode_covariance(sensors, sol, info, sig_all, w_all)
     return _from_C(sol.C_ref_from_body, cov, "joint", int(sol.n_used))
+
+
+def _deck_information(sensors, w_deck, sigma) -> np.ndarray:
+    """(N, 3, 3) information matrices (rad^-2, deck axes) of every sensor's stars, stacked:
+    ``sigma^-2 (I - w w^T)`` for isotropic stars, ``R F R^T`` for given ones."""
+    info = []
+    for s, wd_s, sig in zip(sensors, w_deck, sigma):
+        if s.info_per_rad2 is None:            # isotropic: sigma^-2 (I - w w^T)
+            wd = wd_s / np.linalg.norm(wd_s, axis=1, keepdims=True)
+            info.append(sig[:, None, None] ** -2 * (np.eye(3) - wd[:, :, None] * wd[:, None, :]))
+        else:
+            R = np.asarray(s.C_deck_from_sensor, float)
+            info.append(R @ np.asarray(s.info_per_rad2, float) @ R.T)
+    return np.concatenate(info)
 
 
 def _inlier_rows(sensors, inliers):

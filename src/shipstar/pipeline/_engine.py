@@ -144,8 +144,7 @@ class SessionEngine:
 
         self._mounts = MountEstimator(self.configs, self.reference) if n > 1 else None   # clocks, flexure
         if n > 1:
-            # the chi-square quantiles of the integrity check and the mount estimator load
-            # scipy.special (~170 ms): here, not at the first epoch (a stall live would pay)
+            # the chi-square quantile of the integrity check, computed once here (cached)
             from shipstar.pipeline._integrity import chi2_limit
 
             chi2_limit(3 * (n - 1))

@@ -155,12 +155,44 @@ class MountsSnapshot:
     time_offsets_s : dict
         ``{sensor: {"offset_s", "sigma_s", "applied"}}`` (the summary's ``time_offsets_s``).
     flexure : dict
-        ``{sensor: {...}}`` (the summary's ``flexure``).
+        ``{sensor: {...}}`` (the summary's ``flexure``; a property, built on first read
+        from ``flexure_source``: the dict, or a callable that gives it).
     """
 
     monitor: tuple
     time_offsets_s: dict
-    flexure: dict
+    #: the flexure dict, or a callable that builds it (:class:`_FlexureLater`) when read
+    flexure_source: object
+
+    @property
+    def flexure(self) -> dict:
+        f = self.flexure_source
+        if callable(f):
+            f = f()
+            object.__setattr__(self, "flexure_source", f)
+        return f
+
+
+class _FlexureLater:
+    """The summary's flexure entries of an epoch, built when read: the tracks' state at the
+    epoch is kept (a shallow copy with the arrays the later epochs change in place copied),
+    not the ~50 us an epoch of building every entry that is never read (the summary reads
+    the last epoch's)."""
+
+    def __init__(self, entries):
+        self._entries = [(name, _frozen_track(tr), sems) for name, tr, sems in entries]
+
+    def __call__(self) -> dict:
+        return {name: tr.flexure_block(sems) for name, tr, sems in self._entries}
+
+
+def _frozen_track(tr):
+    import copy
+
+    out = copy.copy(tr)
+    out.a_sum, out.aa_sum, out.uu_lag = tr.a_sum.copy(), tr.aa_sum.copy(), tr.uu_lag.copy()
+    out.gains_used = list(tr.gains_used)
+    return out
 
 
 def _design(a_deg, omega_asec_per_ms) -> np.ndarray:
@@ -513,7 +545,7 @@ class MountEstimator:
                 y = d + applied_phi + omega * (shifts_s[k] * 1e3)
                 if np.all(np.isfinite(y)) and np.all(np.isfinite(P)):
                     tr.add(t_s, y, np.linalg.inv(P), a, omega)
-        return MountsSnapshot(self.monitor(fr_ref), self.time_offsets(), self.flexure())
+        return MountsSnapshot(self.monitor(fr_ref), self.time_offsets(), _FlexureLater(self._flexure_entries()))
 
     def monitor(self, fr_ref) -> tuple:
         """``(sensor, rot_arcsec (3,), sigma_arcsec (3,))`` per non-reference sensor: the
@@ -537,13 +569,12 @@ class MountEstimator:
         return out
 
     def flexure(self) -> dict:
-        out = {}
+        return {name: tr.flexure_block(sems) for name, tr, sems in self._flexure_entries()}
+
+    def _flexure_entries(self) -> list:
         ref = self.configs[self.reference]
-        for k, tr in self._tracks.items():
-            c = self.configs[k]
-            sems = _sems(getattr(ref, "installation", None)) + _sems(c.installation)
-            out[c.name] = tr.flexure_block(sems)
-        return out
+        return [(self.configs[k].name, tr, _sems(getattr(ref, "installation", None)) + _sems(self.configs[k].installation))
+                for k, tr in self._tracks.items()]
 
 
 def monitor_rows(epoch) -> list:

@@ -338,7 +338,7 @@ class SessionStats:
             return
         self.n_epochs += 1
         if getattr(e, "mounts", None) is not None:
-            self._mounts = {"time_offsets_s": e.mounts.time_offsets_s, "flexure": e.mounts.flexure}
+            self._mounts = e.mounts            # MountsSnapshot: its flexure is built when read
         if len(self.sensors) > 1:
             self._integrity.add(e)
             self._methods["seed-rule"].add(e.seed_rule, self.truth, e.utc_jd1, e.utc_jd2)
@@ -411,7 +411,14 @@ class SessionStats:
         """JSON-able state (to continue with ``SessionStats(..., state=...)``)."""
         return {"n_epochs": self.n_epochs, "sensors": {k: v.state() for k, v in self._sensors.items()},
                 "methods": {k: v.state() for k, v in self._methods.items()}, "integrity": self._integrity.state(),
-                "mounts": self._mounts}
+                "mounts": self._mounts_dict()}
+
+    def _mounts_dict(self):
+        """The last epoch's clock offsets and flexure (dicts), or None."""
+        m = self._mounts
+        if m is None or isinstance(m, dict):
+            return m
+        return {"time_offsets_s": m.time_offsets_s, "flexure": m.flexure}
 
     def summary(self, *, reference_sensor: str, fore_aft_sensor: str, athwartship_sensor: str, options) -> dict:
         """The JSON-able summary (the structure of :func:`session_summary`)."""
@@ -431,7 +438,7 @@ class SessionStats:
 
     def _mounts_block(self, reference_sensor: str) -> dict:
         """``time_offsets_s`` and ``flexure`` (pipeline._mounts): one entry per non-reference sensor."""
-        m = self._mounts or {}
+        m = self._mounts_dict() or {}
         others = [s for s in self.sensors if s != reference_sensor]
         none = {"offset_s": None, "sigma_s": None, "applied": False}
         return {"time_offsets_s": {s: m.get("time_offsets_s", {}).get(s, none) for s in others},
