@@ -195,12 +195,15 @@ def _frozen_track(tr):
     return out
 
 
+_DESIGN_EYE = np.hstack([np.eye(3), np.zeros((3, _NP - 3))])
+_DIAG = (np.arange(3), np.arange(3))
+
+
 def _design(a_deg, omega_asec_per_ms) -> np.ndarray:
     """(3, 10) regressors of one epoch: s, G (roll, pitch), delta (ms)."""
-    X = np.zeros((3, _NP))
-    X[:, 0:3] = np.eye(3)
-    X[:, 3:6] = a_deg[0] * np.eye(3)
-    X[:, 6:9] = a_deg[1] * np.eye(3)
+    X = _DESIGN_EYE.copy()
+    X[_DIAG[0], _DIAG[1] + 3] = a_deg[0]
+    X[_DIAG[0], _DIAG[1] + 6] = a_deg[1]
     X[:, 9] = omega_asec_per_ms
     return X
 
@@ -250,10 +253,12 @@ class _Track:
 
     def _fit(self, keep):
         """(theta (10,), cov (10, 10)) of the parameters ``keep`` (the others 0), or None."""
-        N, b = self.N[np.ix_(keep, keep)], self.b[keep]
-        ridge = 1e-9 * max(1.0, float(np.trace(N))) * np.eye(len(b))
+        every = bool(keep.all())
+        N, b = (self.N, self.b) if every else (self.N[np.ix_(keep, keep)], self.b[keep])
+        A = N.copy()                                    # N + 1e-9 max(1, tr N) I
+        A.flat[::len(b) + 1] += 1e-9 * max(1.0, float(np.trace(N)))
         try:
-            cov_k = np.linalg.inv(N + ridge)
+            cov_k = np.linalg.inv(A)
         except np.linalg.LinAlgError:
             return None
         theta_k = cov_k @ b
@@ -261,6 +266,8 @@ class _Track:
         dof = 3.0 * self.n_eff - len(b)
         scale = max(1.0, chi2 / dof) if dof > 0 else 1.0
         scale *= self.correlation_factor()
+        if every:
+            return theta_k, cov_k * scale
         theta, cov = np.zeros(_NP), np.zeros((_NP, _NP))
         theta[keep] = theta_k
         cov[np.ix_(keep, keep)] = cov_k * scale
