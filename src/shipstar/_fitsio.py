@@ -87,6 +87,8 @@ _QUICK_KEYS = frozenset(("NAXIS", "NAXIS1", "NAXIS2", "DATE-OBS", "DATE-BEG", "D
                          "SITEELEV", "PRESSURE", "TEMPERAT", "REFRMOD", "SIMFRAME"))
 #: Cards of a plain image's data (``_quick_read``).
 _DATA_KEYS = frozenset(("BITPIX", "BZERO", "BSCALE", "BLANK", "GROUPS"))
+#: The keys of both, as the bytes of a card -> the key.
+_USED_KEYS_B = {k.encode("ascii"): k for k in (*_QUICK_KEYS, *_DATA_KEYS)}
 #: BITPIX -> stored dtype of the plain images read directly.
 _PLAIN_DTYPES = {8: ">u1", 16: ">i2", 32: ">i4", -32: ">f4", -64: ">f8"}
 #: (BITPIX, BZERO) of unsigned integers stored with an offset -> (XOR of the sign bit, dtype).
@@ -298,14 +300,14 @@ def _quick_cards(head: bytes):
         return None
     cards = {}
     for i in range(0, len(head) - _CARD + 1, _CARD):
-        key = head[i:i + 8].decode("ascii", "replace").strip()       # only the cards used are decoded
-        if key == "END":
+        key = head[i:i + 8].strip()                 # compared as bytes: only the cards used are decoded
+        if key == b"END":
             header_bytes = -(-(i + _CARD) // _BLOCK) * _BLOCK
             break
-        if key == "CONTINUE":                       # a long string: leave it to astropy
+        if key == b"CONTINUE":                      # a long string: leave it to astropy
             return None
-        if (key in _QUICK_KEYS or key in _DATA_KEYS) and head[i + 8:i + 10] == b"= ":
-            cards[key] = _card_value(head[i:i + _CARD].decode("ascii", "replace"))
+        if key in _USED_KEYS_B and head[i + 8:i + 10] == b"= ":
+            cards[_USED_KEYS_B[key]] = _card_value(head[i:i + _CARD].decode("ascii", "replace"))
     else:
         return None
     if cards.get("NAXIS") != "2" or not str(cards.get("NAXIS1", "")).isdigit() \

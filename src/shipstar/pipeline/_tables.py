@@ -199,7 +199,7 @@ class _TimeTable:
                                 f"row or after the last)")
         if len(self.t_s) == 1:
             return 0, 0.0
-        i = int(np.clip(np.searchsorted(self.t_s, t) - 1, 0, len(self.t_s) - 2))
+        i = min(max(int(np.searchsorted(self.t_s, t)) - 1, 0), len(self.t_s) - 2)     # plain ints: 2 us, not 8
         gap = self.t_s[i + 1] - self.t_s[i]
         if gap > self._max_gap_s + _GAP_ROUNDING_S and self.t_s[i] < t < self.t_s[i + 1]:
             from shipstar.sky.time import iso_from_utc_jd
@@ -207,7 +207,7 @@ class _TimeTable:
             raise ShipstarError(f"frame time {iso_from_utc_jd(utc_jd1, utc_jd2, 6)} falls in a gap of {gap:.6g} s "
                                 f"of the {self.name} (rows at {self._iso_at(self.t_s[i])} and "
                                 f"{self._iso_at(self.t_s[i + 1])}; at most {self._max_gap_s:g} s between rows)")
-        f = float(np.clip((t - self.t_s[i]) / gap, 0.0, 1.0))
+        f = min(max(float((t - self.t_s[i]) / gap), 0.0), 1.0)
         return i, f
 
     def check_covers(self, utc_jd1: float, utc_jd2: float) -> None:

@@ -93,6 +93,11 @@ def utc_jd_from_iso(text: str) -> tuple[float, float]:
         )
     parts = [int(m[k]) for k in ("y", "mo", "d", "h", "mi")]
     sec = float(m["s"])
+    # ERFA's ufunc first (status 0: fine, 1: a dubious year, accepted): every frame's header
+    # time comes through here; any other status goes through the wrapper for its message
+    jd1, jd2, status = erfa.ufunc.dtf2d(b"UTC", *parts, sec)
+    if status in (0, 1):
+        return float(jd1), float(jd2)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
