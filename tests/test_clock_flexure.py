@@ -314,3 +314,45 @@ def test_single_rows_of_a_sensor_with_an_applied_clock_offset_are_at_the_true_ti
         (at_row, at_header)
     a1 = rms_err_arcsec(singles["A1"], [float(r["t_s"]) for r in singles["A1"]])
     assert np.all(a1 < 10.0), a1                                     # the time origin is the truth's
+
+
+# -- a resumed measure run: the estimator continues where it was --------------------------------
+
+def _measure_job(conditions, smooth_lag_s):
+    from shipstar.pipeline._measure import MeasureJob
+    from shipstar.pipeline._sources import FrameListSource
+
+    spec = apply_conditions(sea_session(duration_s=DURATION_S), load_conditions(conditions))
+    cf = simulate_centroids(spec)
+    track, weather, _ = tables(spec)
+    configs = tuple(SensorConfig(s.name, s.camera, Installation.from_matrix(s.name, s.camera.name,
+                                                                            s.C_deck_from_sensor))
+                    for s in spec.sensors)
+    job = MeasureJob(configs, track, weather, PipelineOptions(), spec.utc_jd(0.0), 0, smooth_lag_s)
+    return job, [FrameListSource(s.name, frames_of(cf, s.name)) for s in spec.sensors]
+
+
+@pytest.mark.parametrize("conditions, smooth_lag_s", [("clock", 0.0), ("flexure", 1.5)])
+def test_a_resumed_run_writes_the_rows_of_an_uninterrupted_one(conditions, smooth_lag_s, tmp_path):
+    """measure stopped after 6 s of 8 and resumed past 3.5 s (the 30 epochs the estimator
+    needs to apply the clock offset or the flexure; with a lag, the epochs held for it send
+    the resume back): the estimator's state comes back from the
+    checkpoint, so the rows after the resume point are those of the uninterrupted run (a
+    fresh estimator would go 30 epochs without the correction: tens of arcsec)."""
+    import threading
+
+    from shipstar.pipeline._measure import run_measure
+
+    job, sources = _measure_job(conditions, smooth_lag_s)
+    calls = []
+    full = run_measure(job, sources, tmp_path / "full.csv", chunk_s=1.0, progress=lambda *a: calls.append(a))
+    assert full.complete
+    # the progress: frames done of all, after each chunk (it once showed a task's flag)
+    assert calls == [(20 * (k + 1), 160) for k in range(8)]
+    stop = threading.Event()
+    got = run_measure(job, sources, tmp_path / "cut.csv", chunk_s=1.0, stop=stop,
+                      progress=lambda done, total: stop.set() if done >= 0.75 * total else None)
+    assert got.stopped and not got.complete
+    resumed = run_measure(job, sources, tmp_path / "cut.csv", chunk_s=1.0, resume=True)
+    assert resumed.complete and resumed.resumed_at_s >= 3.5
+    assert (tmp_path / "cut.csv").read_text() == (tmp_path / "full.csv").read_text()

@@ -156,6 +156,93 @@ class SessionEngine:
         #: the fixed lag (s) of the mounts' smoothing (module docstring; 0: causal)
         self.smooth_lag_s = lag if self._mounts is not None else 0.0
         self._held = deque()     # (t_s, Emission, fusion inputs or None) not yet given out
+        self._windows: dict = {}     # key -> (t_lo_s, t_hi_s): record the mounts' estimator there
+        self._records: dict = {}     # key -> {"states": [[t_s, state]], "shifts": [[sensor, t_s, shift_s]]}
+        self._replay = None          # (deque of (t_s, state), {(sensor, t_s): shift_s}) being replayed
+
+    # -- resuming (shipstar measure --resume) ------------------------------------------------
+    def record_mounts(self, windows: dict) -> None:
+        """Keep what a resume that replays from each window needs (``{key: (t_lo_s, t_hi_s)}``,
+        seconds from the start): the mounts' estimator state before every epoch at ``t_lo
+        <= t <= t_hi`` and the clock shift applied to every frame added at ``t_lo <= t <
+        t_hi + 1 s`` (header time).  A resume (:meth:`replay_mounts`) replays the frames
+        from ``t_lo`` with the estimator as it was: its own updates from the replayed
+        epochs alone would start afresh.  Bounded: drop what is no longer needed
+        (:meth:`drop_records`)."""
+        if self._mounts is not None:
+            self._windows.update({k: (float(a), float(b)) for k, (a, b) in windows.items()})
+            self._sort_windows()
+
+    def _sort_windows(self) -> None:
+        self._win = sorted((lo, hi, k) for k, (lo, hi) in self._windows.items())
+        self._win_lo = [w[0] for w in self._win]
+        self._win_span = max((hi - lo for lo, hi, _ in self._win), default=0.0)
+
+    def _windows_at(self, t_s: float, after_s: float = 0.0) -> list:
+        """Keys of the windows with ``lo <= t_s <= hi + after_s`` (bisection: a night has
+        hundreds of chunks)."""
+        import bisect
+
+        out = []
+        k = bisect.bisect_right(self._win_lo, t_s + _EPS_S) - 1
+        while k >= 0 and self._win[k][0] >= t_s - self._win_span - after_s - 1.0:
+            lo, hi, key = self._win[k]
+            if lo - _EPS_S <= t_s <= hi + after_s + _EPS_S:
+                out.append(key)
+            k -= 1
+        return out
+
+    def mounts_record(self, key):
+        """What was kept for window ``key`` (JSON-able), or None."""
+        return self._records.get(key)
+
+    def drop_records(self, keep) -> None:
+        """Forget the windows and records whose key is not in ``keep``."""
+        self._windows = {k: v for k, v in self._windows.items() if k in keep}
+        self._records = {k: v for k, v in self._records.items() if k in keep}
+        self._sort_windows()
+
+    def replay_mounts(self, record) -> None:
+        """Replay with a record kept by :meth:`record_mounts` (a resume): the estimator
+        starts from the state before the window's first epoch, is set to the kept state
+        before each of its epochs, and the kept shifts are applied to the window's frames;
+        past the window the engine goes on as the uninterrupted run did."""
+        if self._mounts is None or not record or not record.get("states"):
+            return
+        states = deque((float(t), st) for t, st in record["states"])
+        shifts = {(int(k), round(float(t), 6)): float(x) for k, t, x in record.get("shifts", ())}
+        self._mounts.restore(states[0][1])
+        self._replay = (states, shifts)
+
+    def _shift_s(self, s: int, t_header_s: float) -> float:
+        """The clock shift (s) applied to sensor ``s``'s frame at header time ``t_header_s``."""
+        if self._mounts is None:
+            return 0.0
+        if self._replay is not None:
+            kept = self._replay[1].get((s, round(t_header_s, 6)))
+            if kept is not None:
+                return kept
+        x = self._mounts.shift_s(s)
+        if self._windows:
+            for key in self._windows_at(t_header_s, 1.0):
+                self._records.setdefault(key, {"states": [], "shifts": []})["shifts"].append([s, t_header_s, x])
+        return x
+
+    def _mounts_before_epoch(self, t_k: float) -> None:
+        """Replay: the kept state before epoch ``t_k``; recording: keep it."""
+        if self._replay is not None:
+            states = self._replay[0]
+            while states and states[0][0] < t_k - 1e-6:
+                states.popleft()
+            if states and abs(states[0][0] - t_k) <= 1e-6:
+                self._mounts.restore(states.popleft()[1])
+            if not states:
+                self._replay = None
+        if self._windows:
+            keys = self._windows_at(t_k)
+            state = self._mounts.state() if keys else None
+            for key in keys:
+                self._records.setdefault(key, {"states": [], "shifts": []})["states"].append([t_k, state])
 
     # -- input -----------------------------------------------------------------------------
     def t_s(self, fr) -> float:
@@ -171,7 +258,8 @@ class SessionEngine:
     def add(self, fr) -> list:
         """Add one frame result of one sensor; returns the emissions that became final."""
         s = self._index(fr.sensor)
-        t = self.t_s(fr) + (self._mounts.shift_s(s) if self._mounts is not None else 0.0)   # clock offset
+        t_header = self.t_s(fr)
+        t = t_header + self._shift_s(s, t_header)       # clock offset
         if t <= self._last_t[s] + _EPS_S:
             reason = (f"frame time {fr.utc_iso} is not later than the sensor's previous frame "
                       f"({self._last_t[s] - t:.6f} s earlier or the same): refused")
@@ -338,6 +426,7 @@ class SessionEngine:
             motion = self._motion.fit(limits)
         shifts, fit, configs, vf = None, None, self.configs, 1.0
         if self._mounts is not None:                    # clock offsets and flexure (pipeline._mounts)
+            self._mounts_before_epoch(t_k)
             fit = motion if motion is not None else self._motion.fit(limits)
             configs = self._mounts.configs_for(fr_ref, None if fit is None else fit.omega_at(t_k))
             vf = self._mounts.variance_factor()

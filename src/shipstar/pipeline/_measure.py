@@ -48,7 +48,7 @@ WARMUP_S = 6.6
 #: The engine's state (pairing, the deck's motion window) rebuilt on resume from this many
 #: seconds of results before the resume point.
 ENGINE_WARMUP_S = 1.3
-RESUME_VERSION = 1
+RESUME_VERSION = 2
 _EPS_S = 1e-9
 
 
@@ -243,6 +243,18 @@ def _plan(times_s: list, chunk_s: float) -> list:
             row.append(_Chunk(j, s, *(int(i) for i in idx)))
         plan.append(row)
     return plan
+
+
+def _replay_windows(plan: list, reference: int, ref_times_s, chunk_s: float) -> dict:
+    """``{chunk: (t_lo_s, t_hi_s)}``: the reference sensor's epochs a resume from that chunk
+    replays (from ``t_lo``, :data:`ENGINE_WARMUP_S` before the chunk) up to its own first
+    epoch (``t_hi``, included: from there on the replayed engine is the uninterrupted one)."""
+    out = {}
+    for row in plan[1:]:
+        c = row[reference]
+        t_hi = float(ref_times_s[c.first]) if c.first < len(ref_times_s) else c.index * chunk_s
+        out[c.index] = (c.index * chunk_s - ENGINE_WARMUP_S, t_hi)
+    return out
 
 
 def task_order(plan: list, first_chunk: int = 0) -> list:
@@ -459,9 +471,14 @@ def run_measure(job: MeasureJob, sources, out, *, truth=None, comments=(), worke
     checkpoint = resume_path(out)
     engine = SessionEngine(job.configs, job.options, start_utc_jd=job.start_utc_jd, reference=job.reference,
                            smooth_lag_s=job.smooth_lag_s)
+    # what a resume from each chunk needs of the mounts' estimator (its replay of the
+    # chunk's first ENGINE_WARMUP_S would otherwise start it afresh)
+    engine.record_mounts(_replay_windows(plan, job.reference, times_s[job.reference], chunk_s))
     seen_warnings: list = []
     if resume:
         state = _read_checkpoint(checkpoint, fingerprint, out.with_name(out.name + ".partial"))
+        if state["next_chunk"] > 0:
+            engine.replay_mounts(state.get("mounts"))
         writer = AttitudeCsvWriter(out, names, job.start_utc_jd, append_at=state["bytes"])
         stats = SessionStats(names, truth, state["stats"])
         first_chunk, resume_t = state["next_chunk"], state["resume_t_s"]
@@ -501,8 +518,8 @@ def run_measure(job: MeasureJob, sources, out, *, truth=None, comments=(), worke
                 got = runner.next_batch([kk for kk in ks if not merge.done[kk - ks[0]]], stop)
                 if got is None:
                     break
-                kk, items, done = got
-                for fr, messages in merge.add(kk - ks[0], items, done, engine.t_s) + [(None, merge.orphans)]:
+                kk, items, task_done = got
+                for fr, messages in merge.add(kk - ks[0], items, task_done, engine.t_s) + [(None, merge.orphans)]:
                     for m in messages:
                         if m not in seen_warnings:
                             seen_warnings.append(m)
@@ -534,7 +551,9 @@ def run_measure(job: MeasureJob, sources, out, *, truth=None, comments=(), worke
             _write_checkpoint(checkpoint, {
                 "version": RESUME_VERSION, "fingerprint": fingerprint, "next_chunk": next_chunk,
                 "bytes": writer.tell(), "resume_t_s": next_chunk * chunk_s if nxt is None else nxt,
-                "stats": stats.state(), "warnings": seen_warnings, "n_epochs_written": n_written})
+                "stats": stats.state(), "warnings": seen_warnings, "n_epochs_written": n_written,
+                "mounts": engine.mounts_record(next_chunk)})
+            engine.drop_records({j for j in range(next_chunk, len(plan))})
     except BaseException:
         runner.close(abort=True)
         try:                                  # the epochs held for the smoothing are finished

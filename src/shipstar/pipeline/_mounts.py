@@ -74,6 +74,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from shipstar.errors import ShipstarError
 from shipstar.units import ASEC2RAD, RAD2ASEC, RAD2DEG
 
 __all__ = ["MountEstimator", "MountsSnapshot", "MONITOR_COLUMNS", "MEMORY_S", "MIN_EPOCHS", "is_flexed"]
@@ -234,6 +235,22 @@ class _Track:
         self.vf_t = None
         self.gains_used = [False, False]  # the roll and the pitch wave gains in the model
         self.keep = np.ones(_NP, bool)    # the parameters of the fit in use
+
+    def state(self) -> dict:
+        """Every attribute, JSON-able (arrays as ``{"nd": list, "dtype": str}``; floats
+        round-trip exactly through JSON)."""
+        return {k: ({"nd": v.tolist(), "dtype": str(v.dtype)} if isinstance(v, np.ndarray) else
+                    list(v) if isinstance(v, list) else v) for k, v in vars(self).items()}
+
+    @classmethod
+    def from_state(cls, state: dict) -> "_Track":
+        tr = cls()
+        for k, v in state.items():
+            if k not in vars(tr):
+                raise ShipstarError(f"the mounts' estimator state has an unknown entry {k!r}")
+            setattr(tr, k, np.array(v["nd"], dtype=v["dtype"]) if isinstance(v, dict) else
+                    list(v) if isinstance(v, list) else v)
+        return tr
 
     def active(self) -> np.ndarray:
         """The parameters estimated: the wave gains of an angle only while it spreads by more
@@ -473,6 +490,17 @@ class MountEstimator:
         self.reference = int(reference)
         self.others = [k for k in range(len(self.configs)) if k != self.reference]
         self._tracks = {k: _Track() for k in self.others}
+
+    def state(self) -> dict:
+        """The estimator's state, JSON-able (a checkpoint's: ``measure --resume`` continues
+        with it, :meth:`restore`)."""
+        return {str(k): tr.state() for k, tr in self._tracks.items()}
+
+    def restore(self, state: dict) -> None:
+        """Continue from :meth:`state`'s result."""
+        if sorted(state) != sorted(str(k) for k in self._tracks):
+            raise ShipstarError("the mounts' estimator state is for other sensors")
+        self._tracks = {k: _Track.from_state(state[str(k)]) for k in self._tracks}
 
     def variance_factor(self) -> float:
         """The factor by which the sensors' star covariances fall short of their observed
