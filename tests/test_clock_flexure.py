@@ -356,3 +356,28 @@ def test_a_resumed_run_writes_the_rows_of_an_uninterrupted_one(conditions, smoot
     resumed = run_measure(job, sources, tmp_path / "cut.csv", chunk_s=1.0, resume=True)
     assert resumed.complete and resumed.resumed_at_s >= 3.5
     assert (tmp_path / "cut.csv").read_text() == (tmp_path / "full.csv").read_text()
+
+
+@pytest.mark.parametrize("name", ["clock", "flexure"])
+def test_compiled_mount_step_matches_the_python_path(name, clock, flexure, monkeypatch):
+    """pipeline._mounts._Track.add compiled (attitude._ckernels.mount_step, its own 10 x 10
+    inverse) against its Python path (NumPy's LAPACK): the same decisions at every epoch
+    (gates, applied clock offset and flexure, wave gains) and numbers to rounding."""
+    import shipstar.pipeline._mounts as mounts
+
+    _, compiled, _ = {"clock": clock, "flexure": flexure}[name]
+    monkeypatch.setattr(mounts, "_COMPILED", [False])
+    _, python, _ = _run(name)
+    assert len(compiled.epochs) == len(python.epochs)
+    for a, b in zip(compiled.epochs, python.epochs):
+        fa, fb = a.mounts.flexure["A2"], b.mounts.flexure["A2"]
+        for key in ("applied", "n_epochs", "n_gated", "wave_gains_in_model", "installation_drift"):
+            assert fa[key] == fb[key], (a.index, key)
+        assert a.mounts.time_offsets_s["A2"]["applied"] == b.mounts.time_offsets_s["A2"]["applied"]
+        for x, y in ((a.mounts.time_offsets_s["A2"]["offset_s"], b.mounts.time_offsets_s["A2"]["offset_s"]),
+                     *zip(fa["static_arcsec"].values(), fb["static_arcsec"].values())):
+            assert (x is None and y is None) or x == pytest.approx(y, rel=1e-9, abs=1e-12)
+        np.testing.assert_allclose(a.mounts.monitor[0][1], b.mounts.monitor[0][1], rtol=1e-9, atol=1e-9)
+        ja = np.array([a.joint.heading_rad, a.joint.pitch_rad, a.joint.roll_rad])
+        jb = np.array([b.joint.heading_rad, b.joint.pitch_rad, b.joint.roll_rad])
+        np.testing.assert_allclose(ja, jb, rtol=0, atol=1e-12)          # 2e-7''

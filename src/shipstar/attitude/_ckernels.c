@@ -688,6 +688,350 @@ static PyObject *py_motion_fit(PyObject *self, PyObject *args)
     return PyBool_FromLong(ok);
 }
 
+
+/* ---- the mounts' running fit (pipeline._mounts._Track.add, solve, _rules) ---------------- */
+
+#define TRK_NP 10
+
+/* inverse of an n x n matrix (n <= TRK_NP), Gauss-Jordan with partial pivoting; 0 when a
+ * pivot is exactly 0 (numpy.linalg.inv raises LinAlgError there) */
+static int gj_inverse_n(const double *A, int n, double *inv)
+{
+    double M[TRK_NP][2 * TRK_NP];
+    for (int r = 0; r < n; r++)
+        for (int c = 0; c < n; c++) { M[r][c] = A[n * r + c]; M[r][n + c] = r == c ? 1.0 : 0.0; }
+    for (int col = 0; col < n; col++) {
+        int piv = col;
+        for (int r = col + 1; r < n; r++)
+            if (fabs(M[r][col]) > fabs(M[piv][col])) piv = r;
+        if (M[piv][col] == 0.0) return 0;
+        if (piv != col)
+            for (int c = 0; c < 2 * n; c++) { double t = M[col][c]; M[col][c] = M[piv][c]; M[piv][c] = t; }
+        double d = M[col][col];
+        for (int c = 0; c < 2 * n; c++) M[col][c] /= d;
+        for (int r = 0; r < n; r++) {
+            if (r == col || M[r][col] == 0.0) continue;
+            double f = M[r][col];
+            for (int c = 0; c < 2 * n; c++) M[r][c] -= f * M[col][c];
+        }
+    }
+    for (int r = 0; r < n; r++)
+        for (int c = 0; c < n; c++) inv[n * r + c] = M[r][n + c];
+    return 1;
+}
+
+/* g^T A^-1 g for an n x n A (n <= TRK_NP); 0 when A is singular */
+static int quad_inv(const double *A, const double *g, int n, double *out)
+{
+    double I[TRK_NP * TRK_NP];
+    if (!gj_inverse_n(A, n, I)) return 0;
+    double s = 0.0;
+    for (int i = 0; i < n; i++) {
+        double v = 0.0;
+        for (int j = 0; j < n; j++) v += I[n * i + j] * g[j];
+        s += g[i] * v;
+    }
+    *out = s;
+    return 1;
+}
+
+typedef struct {
+    double memory_s, min_monitor, gate_chi2, min_epochs, max_lag_s, max_rho, vf_memory_s, min_wave_std_deg,
+        enter_sigmas, stay_sigmas, max_apply_sigma_s;
+} TrackParams;
+
+typedef struct {
+    double *sc, *N, *b, *a_sum, *aa_sum, *uu_lag;
+    const double *limits;
+    TrackParams p;
+} Track;
+
+static double trk_correlation_factor(const Track *T)
+{
+    if (T->uu_lag[1] <= 0.0 || T->sc[2] < T->p.min_epochs) return 1.0;
+    double rho = T->uu_lag[0] / T->uu_lag[1];
+    rho = rho > 0.0 ? rho : 0.0;
+    rho = rho < T->p.max_rho ? rho : T->p.max_rho;
+    return (1.0 + rho) / (1.0 - rho);
+}
+
+/* _Track._fit: theta (10), cov (10 x 10) of the parameters keep (the others 0); 0: singular */
+static int trk_fit(const Track *T, const unsigned char *keep, double *theta, double *cov)
+{
+    int idx[TRK_NP], n = 0;
+    for (int i = 0; i < TRK_NP; i++) if (keep[i]) idx[n++] = i;
+    double A[TRK_NP * TRK_NP], Nk[TRK_NP * TRK_NP], bk[TRK_NP], C[TRK_NP * TRK_NP], th[TRK_NP], tr = 0.0;
+    for (int i = 0; i < n; i++) {
+        bk[i] = T->b[idx[i]];
+        for (int j = 0; j < n; j++) Nk[n * i + j] = T->N[TRK_NP * idx[i] + idx[j]];
+        tr += Nk[n * i + i];
+    }
+    double ridge = 1e-9 * (tr > 1.0 ? tr : 1.0);
+    memcpy(A, Nk, sizeof(double) * n * n);
+    for (int i = 0; i < n; i++) A[n * i + i] += ridge;
+    if (!gj_inverse_n(A, n, C)) return 0;
+    double thb = 0.0, thNth = 0.0;
+    for (int i = 0; i < n; i++) {
+        double v = 0.0;
+        for (int j = 0; j < n; j++) v += C[n * i + j] * bk[j];
+        th[i] = v;
+        thb += v * bk[i];
+    }
+    for (int i = 0; i < n; i++) {
+        double v = 0.0;
+        for (int j = 0; j < n; j++) v += Nk[n * i + j] * th[j];
+        thNth += th[i] * v;
+    }
+    double chi2 = T->sc[0] - 2.0 * thb + thNth;
+    chi2 = chi2 > 0.0 ? chi2 : 0.0;
+    double dof = 3.0 * T->sc[1] - n, scale = 1.0;
+    if (dof > 0) scale = chi2 / dof > 1.0 ? chi2 / dof : 1.0;
+    scale *= trk_correlation_factor(T);
+    memset(theta, 0, sizeof(double) * TRK_NP);
+    memset(cov, 0, sizeof(double) * TRK_NP * TRK_NP);
+    for (int i = 0; i < n; i++) {
+        theta[idx[i]] = th[i];
+        for (int j = 0; j < n; j++) cov[TRK_NP * idx[i] + idx[j]] = C[n * i + j] * scale;
+    }
+    return 1;
+}
+
+/* mount_step(sc, N, b, a_sum, aa_sum, uu_lag, u_prev, theta, cov, theta_full, cov_full, keep,
+ *            y, info, a, omega, params, limits,
+ *            o_theta, o_cov, o_theta_full, o_cov_full, o_keep, o_u) -> flags or -1
+ * One _Track.add (the innovation gate, the running sums, solve and the rules) with the
+ * track's arrays updated in place and its scalars in sc (see pipeline/_mounts.py,
+ * _SC_*).  -1: nothing changed (a singular matrix where NumPy would raise): the caller's
+ * Python path runs.  Flags: 1 a new innovation u in o_u, 2 a new fit in o_theta / o_cov,
+ * 4 a new full fit in o_theta_full / o_cov_full and keep in o_keep. */
+static PyObject *py_mount_step(PyObject *self, PyObject *args)
+{
+    Py_buffer B[24];
+    if (!PyArg_ParseTuple(args, "w*w*w*w*w*w*y*y*y*y*y*y*y*y*y*y*y*y*w*w*w*w*w*w*", &B[0], &B[1], &B[2], &B[3],
+                          &B[4], &B[5], &B[6], &B[7], &B[8], &B[9], &B[10], &B[11], &B[12], &B[13], &B[14],
+                          &B[15], &B[16], &B[17], &B[18], &B[19], &B[20], &B[21], &B[22], &B[23]))
+        return NULL;
+    static const Py_ssize_t size[24] = {16 * 8, 100 * 8, 10 * 8, 2 * 8, 4 * 8, 2 * 8, 3 * 8, 10 * 8, 100 * 8,
+                                        10 * 8, 100 * 8, 10, 3 * 8, 9 * 8, 2 * 8, 3 * 8, 11 * 8, 22 * 8,
+                                        10 * 8, 100 * 8, 10 * 8, 100 * 8, 10, 3 * 8};
+    for (int i = 0; i < 24; i++)
+        if (B[i].len != size[i]) {
+            for (int j = 0; j < 24; j++) PyBuffer_Release(&B[j]);
+            PyErr_Format(PyExc_ValueError, "mount_step: argument %d has %zd bytes, not %zd", i, B[i].len, size[i]);
+            return NULL;
+        }
+    Track T;
+    T.sc = B[0].buf; T.N = B[1].buf; T.b = B[2].buf; T.a_sum = B[3].buf; T.aa_sum = B[4].buf;
+    T.uu_lag = B[5].buf; T.limits = B[17].buf;
+    const double *prm = B[16].buf;
+    T.p = (TrackParams){prm[0], prm[1], prm[2], prm[3], prm[4], prm[5], prm[6], prm[7], prm[8], prm[9], prm[10]};
+    const double *u_prev = B[6].buf, *theta = B[7].buf, *cov = B[8].buf, *theta_full = B[9].buf,
+                 *cov_full = B[10].buf, *y = B[12].buf, *info = B[13].buf, *a = B[14].buf, *omega = B[15].buf;
+    const unsigned char *keep = B[11].buf;
+    double *o_theta = B[18].buf, *o_cov = B[19].buf, *o_theta_full = B[20].buf, *o_cov_full = B[21].buf,
+           *o_u = B[23].buf;
+    unsigned char *o_keep = B[22].buf;
+    double *sc = T.sc, t = sc[14];
+    int flags = 0;
+    /* X (3 x 10): s, G (roll, pitch), delta */
+    double X[3 * TRK_NP];
+    memset(X, 0, sizeof X);
+    for (int i = 0; i < 3; i++) {
+        X[TRK_NP * i + i] = 1.0;
+        X[TRK_NP * i + 3 + i] = a[0];
+        X[TRK_NP * i + 6 + i] = a[1];
+        X[TRK_NP * i + 9] = omega[i];
+    }
+    /* the innovation gate (computed first: nothing is changed when a matrix is singular) */
+    int gate = 0, gated = 0, have_u = 0;
+    double chi2 = 0.0, u[3] = {0, 0, 0};
+    if (sc[2] >= T.p.min_monitor) {
+        gate = 1;
+        for (int i = 0; i < TRK_NP; i++) if (!isfinite(theta_full[i])) { gate = 0; break; }
+    }
+    if (gate) {
+        double Ii[9], S[9], v[3], XC[3 * TRK_NP];
+        if (!gj_inverse_n(info, 3, Ii)) goto fallback;
+        for (int i = 0; i < 3; i++) {
+            double s = y[i];
+            for (int j = 0; j < TRK_NP; j++) s -= X[TRK_NP * i + j] * theta_full[j];
+            v[i] = s;
+            for (int j = 0; j < TRK_NP; j++) {
+                double w = 0.0;
+                for (int k = 0; k < TRK_NP; k++) w += X[TRK_NP * i + k] * cov_full[TRK_NP * k + j];
+                XC[TRK_NP * i + j] = w;
+            }
+        }
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++) {
+                double w = 0.0;
+                for (int k = 0; k < TRK_NP; k++) w += XC[TRK_NP * i + k] * X[TRK_NP * j + k];
+                S[3 * i + j] = Ii[3 * i + j] + w;
+            }
+        if (!quad_inv(S, v, 3, &chi2)) goto fallback;
+        /* the whitened innovation u = L^-1 v (Cholesky of S; none when S is not positive) */
+        double L[9] = {0};
+        have_u = 1;
+        for (int j = 0; j < 3 && have_u; j++) {
+            double d = S[3 * j + j];
+            for (int k = 0; k < j; k++) d -= L[3 * j + k] * L[3 * j + k];
+            if (!(d > 0.0)) { have_u = 0; break; }
+            d = sqrt(d);
+            L[3 * j + j] = d;
+            for (int i = j + 1; i < 3; i++) {
+                double w = S[3 * i + j];
+                for (int k = 0; k < j; k++) w -= L[3 * i + k] * L[3 * j + k];
+                L[3 * i + j] = w / d;
+            }
+        }
+        if (have_u)
+            for (int i = 0; i < 3; i++) {
+                double w = v[i];
+                for (int k = 0; k < i; k++) w -= L[3 * i + k] * u[k];
+                u[i] = w / L[3 * i + i];
+            }
+    }
+    /* forgetting */
+    if (!isnan(sc[4])) {
+        double dt = t - sc[4], lam = exp(-(dt > 0.0 ? dt : 0.0) / T.p.memory_s);
+        for (int i = 0; i < 100; i++) T.N[i] *= lam;
+        for (int i = 0; i < 10; i++) T.b[i] *= lam;
+        sc[0] *= lam; sc[1] *= lam;
+        T.a_sum[0] *= lam; T.a_sum[1] *= lam;
+        for (int i = 0; i < 4; i++) T.aa_sum[i] *= lam;
+    }
+    sc[4] = t;
+    if (gate) {
+        /* _add_variance */
+        double c = chi2 < T.p.gate_chi2 ? chi2 : T.p.gate_chi2;
+        if (!isnan(sc[10])) {
+            double dt = t - sc[10], lam = exp(-(dt > 0.0 ? dt : 0.0) / T.p.vf_memory_s);
+            sc[8] *= lam; sc[9] *= lam;
+        }
+        sc[10] = t; sc[8] += c; sc[9] += 1.0;
+        /* _add_correlation */
+        if (have_u) {
+            if (chi2 > T.p.gate_chi2) {
+                double f = sqrt(T.p.gate_chi2 / chi2);
+                for (int i = 0; i < 3; i++) u[i] = u[i] * f;
+            }
+            int had = sc[13] != 0.0;
+            double t_prev = sc[7];
+            memcpy(o_u, u, sizeof u);
+            flags |= 1;
+            sc[13] = 1.0; sc[7] = t;
+            if (had && t - t_prev > 0.0 && t - t_prev <= T.p.max_lag_s) {
+                double lam = exp(-(t - t_prev) / T.p.memory_s), up = 0.0, uu = 0.0, pp = 0.0;
+                T.uu_lag[0] *= lam; T.uu_lag[1] *= lam;
+                for (int i = 0; i < 3; i++) { up += u[i] * u_prev[i]; uu += u[i] * u[i]; pp += u_prev[i] * u_prev[i]; }
+                T.uu_lag[0] += up;
+                T.uu_lag[1] += 0.5 * (uu + pp);
+            }
+        }
+        if (chi2 > T.p.gate_chi2) { sc[3] += 1.0; gated = 1; }
+    }
+    if (!gated) {
+        double XI[TRK_NP * 3];                         /* X^T info (10 x 3) */
+        for (int i = 0; i < TRK_NP; i++)
+            for (int j = 0; j < 3; j++) {
+                double w = 0.0;
+                for (int k = 0; k < 3; k++) w += X[TRK_NP * k + i] * info[3 * k + j];
+                XI[3 * i + j] = w;
+            }
+        for (int i = 0; i < TRK_NP; i++) {
+            for (int j = 0; j < TRK_NP; j++) {
+                double w = 0.0;
+                for (int k = 0; k < 3; k++) w += XI[3 * i + k] * X[TRK_NP * k + j];
+                T.N[TRK_NP * i + j] += w;
+            }
+            double w = 0.0;
+            for (int k = 0; k < 3; k++) w += XI[3 * i + k] * y[k];
+            T.b[i] += w;
+        }
+        double yIy = 0.0;
+        for (int i = 0; i < 3; i++) {
+            double w = 0.0;
+            for (int k = 0; k < 3; k++) w += info[3 * i + k] * y[k];
+            yIy += y[i] * w;
+        }
+        sc[0] += yIy; sc[1] += 1.0; sc[2] += 1.0;
+        T.a_sum[0] += a[0]; T.a_sum[1] += a[1];
+        T.aa_sum[0] += a[0] * a[0]; T.aa_sum[1] += a[0] * a[1]; T.aa_sum[2] += a[1] * a[0]; T.aa_sum[3] += a[1] * a[1];
+        /* solve */
+        const double *th_now = theta, *cov_now = cov;
+        const unsigned char *keep_now = keep;
+        if (sc[2] >= T.p.min_monitor) {
+            unsigned char active[TRK_NP];
+            double var[2] = {0.0, 0.0};
+            if (sc[1] > 0) {
+                double m0 = T.a_sum[0] / sc[1], m1 = T.a_sum[1] / sc[1];
+                var[0] = T.aa_sum[0] / sc[1] - m0 * m0;
+                var[1] = T.aa_sum[3] / sc[1] - m1 * m1;
+            }
+            for (int i = 0; i < TRK_NP; i++) active[i] = 1;
+            for (int j = 0; j < 2; j++)
+                if (!(var[j] > T.p.min_wave_std_deg * T.p.min_wave_std_deg))
+                    for (int i = 3 + 3 * j; i < 6 + 3 * j; i++) active[i] = 0;
+            double fth[TRK_NP], fcov[TRK_NP * TRK_NP];
+            if (trk_fit(&T, active, fth, fcov)) {
+                unsigned char kp[TRK_NP];
+                memcpy(kp, active, sizeof kp);
+                for (int j = 0; j < 2; j++) {
+                    int c0 = 3 + 3 * j;
+                    if (!(active[c0] && active[c0 + 1] && active[c0 + 2])) { sc[11 + j] = 0.0; continue; }
+                    double g[3], C[9], q;
+                    for (int i = 0; i < 3; i++) {
+                        g[i] = fth[c0 + i];
+                        for (int k = 0; k < 3; k++) C[3 * i + k] = fcov[TRK_NP * (c0 + i) + c0 + k];
+                    }
+                    if (!quad_inv(C, g, 3, &q)) q = INFINITY;
+                    int used = sc[11 + j] != 0.0;
+                    used = q > T.limits[used ? 0 : 1];
+                    sc[11 + j] = used;
+                    for (int i = c0; i < c0 + 3; i++) kp[i] = kp[i] && used;
+                }
+                int same = memcmp(kp, active, sizeof kp) == 0, ok = 1;
+                if (same) {
+                    memcpy(o_theta, fth, sizeof fth);
+                    memcpy(o_cov, fcov, sizeof fcov);
+                } else {
+                    ok = trk_fit(&T, kp, o_theta, o_cov);
+                }
+                if (ok) {
+                    memcpy(o_theta_full, fth, sizeof fth);
+                    memcpy(o_cov_full, fcov, sizeof fcov);
+                    memcpy(o_keep, kp, sizeof kp);
+                    flags |= 6;
+                    th_now = o_theta; cov_now = o_cov; keep_now = o_keep;
+                }
+            }
+        }
+        /* _rules */
+        int finite = 1;
+        for (int i = 0; i < TRK_NP; i++) if (!isfinite(th_now[i])) { finite = 0; break; }
+        if (sc[2] >= T.p.min_epochs && finite) {
+            double off = th_now[9] * 1e-3, c99 = cov_now[TRK_NP * 9 + 9];
+            double sig = isfinite(c99) ? sqrt(c99) * 1e-3 : NAN;
+            double k = sc[5] != 0.0 ? T.p.stay_sigmas : T.p.enter_sigmas;
+            sc[5] = (sig <= T.p.max_apply_sigma_s && fabs(off) > k * sig) ? 1.0 : 0.0;
+            int idx[9], n = 0;
+            for (int i = 0; i < 9; i++) if (keep_now[i]) idx[n++] = i;
+            double f[9], C[81], q;
+            for (int i = 0; i < n; i++) {
+                f[i] = th_now[idx[i]];
+                for (int j = 0; j < n; j++) C[n * i + j] = cov_now[TRK_NP * idx[i] + idx[j]];
+            }
+            if (quad_inv(C, f, n, &q))
+                sc[6] = q > T.limits[(sc[6] != 0.0 ? 2 : 12) + n] ? 1.0 : 0.0;
+        }
+    }
+    for (int j = 0; j < 24; j++) PyBuffer_Release(&B[j]);
+    return PyLong_FromLong(flags);
+fallback:
+    for (int j = 0; j < 24; j++) PyBuffer_Release(&B[j]);
+    return PyLong_FromLong(-1);
+}
+
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS, "solve_attitude's QUEST path (see _solve.py)"},
     {"quest", py_quest, METH_VARARGS, "QUEST of weighted rows (see pipeline/_conditions.py)"},
@@ -695,6 +1039,7 @@ static PyMethodDef methods[] = {
      "expected whitened residual moments of a weighted fit (see pipeline/_conditions.py)"},
     {"noise_fit", py_noise_fit, METH_VARARGS, "NoiseModel._fit (see pipeline/_conditions.py)"},
     {"motion_fit", py_motion_fit, METH_VARARGS, "fit_motion's normal equations (see pipeline/_motion.py)"},
+    {"mount_step", py_mount_step, METH_VARARGS, "one epoch of the mounts' running fit (see pipeline/_mounts.py)"},
     {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef moddef = {PyModuleDef_HEAD_INIT, "_ckernels",

@@ -209,6 +209,27 @@ def _design(a_deg, omega_asec_per_ms) -> np.ndarray:
     return X
 
 
+#: The compiled step of :class:`_Track` (``[False]``: the Python path, the tests' reference).
+_COMPILED = [True]
+_ZERO3 = np.zeros(3)
+#: mount_step's constants, in its order.
+_TRACK_PARAMS = np.array([MEMORY_S, MIN_MONITOR_EPOCHS, GATE_CHI2, MIN_EPOCHS, MAX_LAG_S, MAX_RHO, VARIANCE_MEMORY_S,
+                          MIN_WAVE_STD_DEG, ENTER_SIGMAS, STAY_SIGMAS, MAX_APPLY_SIGMA_S], dtype=np.float64)
+_LIMITS: list = []
+
+
+def _track_limits() -> np.ndarray:
+    """mount_step's chi-square limits: the gain groups' (3 dof) to stay and to enter, then
+    the flexure's to stay and to enter for 0..9 dof (0 unused)."""
+    if not _LIMITS:
+        from shipstar.pipeline._integrity import chi2_limit
+
+        stay = [0.0] + [chi2_limit(k, STAY_P) for k in range(1, 10)]
+        enter = [0.0] + [chi2_limit(k, ENTER_P) for k in range(1, 10)]
+        _LIMITS.append(np.array([chi2_limit(3, GAIN_STAY_P), chi2_limit(3, GAIN_ENTER_P), *stay, *enter]))
+    return _LIMITS[0]
+
+
 class _Track:
     """Running weighted least squares of one non-reference sensor."""
 
@@ -325,6 +346,48 @@ class _Track:
         self.keep = keep
 
     def add(self, t_s, y_asec, info, a_deg, omega) -> None:
+        """One epoch: ``y_asec`` (3,) the sensors' disagreement, ``info`` (3, 3) its
+        information, ``a_deg`` (2,) roll and pitch, ``omega`` (3,) arcsec per ms.  Compiled
+        (:func:`shipstar.attitude._ckernels.mount_step`: the same steps, its own 10 x 10
+        inverse) unless ``_COMPILED[0]`` is False or a matrix is singular there."""
+        if _COMPILED[0] and self._add_compiled(t_s, y_asec, info, a_deg, omega):
+            return
+        self._add_python(t_s, y_asec, info, a_deg, omega)
+
+    def _add_compiled(self, t_s, y_asec, info, a_deg, omega) -> bool:
+        from shipstar.attitude._ckernels import mount_step
+
+        none = math.nan
+        sc = np.array([self.yy, self.n_eff, self.n, self.n_gated, none if self.t_last is None else self.t_last,
+                       self.clock_applied, self.flex_applied, none if self.t_prev is None else self.t_prev,
+                       self.vf_chi2, self.vf_n, none if self.vf_t is None else self.vf_t,
+                       self.gains_used[0], self.gains_used[1], self.u_prev is not None, float(t_s), 0.0])
+        o_theta, o_theta_full, o_u = np.empty(_NP), np.empty(_NP), np.empty(3)
+        o_cov, o_cov_full, o_keep = np.empty((_NP, _NP)), np.empty((_NP, _NP)), np.empty(_NP, bool)
+        f64 = np.float64
+        flags = mount_step(sc, self.N, self.b, self.a_sum, self.aa_sum, self.uu_lag,
+                           _ZERO3 if self.u_prev is None else np.ascontiguousarray(self.u_prev, f64),
+                           self.theta, self.cov, self.theta_full, self.cov_full, self.keep,
+                           np.ascontiguousarray(y_asec, f64), np.ascontiguousarray(info, f64),
+                           np.ascontiguousarray(a_deg, f64), np.ascontiguousarray(omega, f64),
+                           _TRACK_PARAMS, _track_limits(), o_theta, o_cov, o_theta_full, o_cov_full, o_keep, o_u)
+        if flags < 0:
+            return False
+        yy, n_eff, n, n_gated, t_last, clock, flex, t_prev, vf_chi2, vf_n, vf_t, g0, g1 = sc[:13].tolist()
+        self.yy, self.n_eff, self.n, self.n_gated = yy, n_eff, int(n), int(n_gated)
+        self.t_last, self.t_prev = t_last, (None if math.isnan(t_prev) else t_prev)
+        self.vf_chi2, self.vf_n, self.vf_t = vf_chi2, vf_n, (None if math.isnan(vf_t) else vf_t)
+        self.clock_applied, self.flex_applied = bool(clock), bool(flex)
+        self.gains_used = [bool(g0), bool(g1)]
+        if flags & 1:
+            self.u_prev = o_u
+        if flags & 2:
+            self.theta, self.cov = o_theta, o_cov
+        if flags & 4:
+            self.theta_full, self.cov_full, self.keep = o_theta_full, o_cov_full, o_keep
+        return True
+
+    def _add_python(self, t_s, y_asec, info, a_deg, omega) -> None:
         if self.t_last is not None:
             lam = math.exp(-max(0.0, t_s - self.t_last) / MEMORY_S)
             self.N *= lam
