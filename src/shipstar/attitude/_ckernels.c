@@ -1032,6 +1032,94 @@ fallback:
     return PyLong_FromLong(-1);
 }
 
+
+/* ---- the engine's integrity check (pipeline._integrity.check_integrity) ---------------- */
+
+static void expm3(const double *phi, double *R)       /* pipeline._motion.expm_rotvec */
+{
+    double x = phi[0], y = phi[1], z = phi[2], a = sqrt(x * x + y * y + z * z);
+    if (a == 0.0) {
+        for (int i = 0; i < 9; i++) R[i] = (i % 4 == 0) ? 1.0 : 0.0;
+        return;
+    }
+    double s = sin(a) / a, c1 = (1.0 - cos(a)) / (a * a);
+    R[0] = 1.0 - c1 * (y * y + z * z); R[1] = c1 * x * y - s * z; R[2] = c1 * x * z + s * y;
+    R[3] = c1 * x * y + s * z; R[4] = 1.0 - c1 * (x * x + z * z); R[5] = c1 * y * z - s * x;
+    R[6] = c1 * x * z - s * y; R[7] = c1 * y * z + s * x; R[8] = 1.0 - c1 * (x * x + y * y);
+}
+
+static void mul_t3(const double *A, const double *B, double *out)    /* A^T B */
+{
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            out[3 * i + j] = A[i] * B[j] + A[3 + i] * B[3 + j] + A[6 + i] * B[6 + j];
+}
+
+#define INTEGRITY_MAX_N 16
+
+/* integrity(C, P, floor_rad2, out_d, out_chi2k) -> 1, 0 (a singular matrix: the caller's
+ * Python path) or -1 (a covariance not finite: not checked).  For n sensors, C (n, 3, 3)
+ * their deck attitudes, P (n, 3, 3) covariances, floor_rad2 (n,): infos I_k =
+ * inv(sym(P_k) + floor_k I), r_k = log(C_0^T C_k), the information-weighted mean
+ * C_mean = C_0 exp(solve(sum I_k, sum I_k r_k)), d_k = log(C_mean^T C_k) into out_d (n, 3)
+ * and d_k^T I_k d_k into out_chi2k (n,). */
+static PyObject *py_integrity(PyObject *self, PyObject *args)
+{
+    Py_buffer bc, bp, bf, od, oq;
+    if (!PyArg_ParseTuple(args, "y*y*y*w*w*", &bc, &bp, &bf, &od, &oq)) return NULL;
+    long n = (long)(bf.len / sizeof(double));
+    int ok = 1;
+    if (n < 1 || n > INTEGRITY_MAX_N || bc.len != (Py_ssize_t)(9 * n * sizeof(double)) || bp.len != bc.len
+        || od.len != (Py_ssize_t)(3 * n * sizeof(double)) || oq.len != bf.len) {
+        PyBuffer_Release(&bc); PyBuffer_Release(&bp); PyBuffer_Release(&bf); PyBuffer_Release(&od);
+        PyBuffer_Release(&oq);
+        PyErr_SetString(PyExc_ValueError, "integrity: bad sizes");
+        return NULL;
+    }
+    const double *C = bc.buf, *P = bp.buf, *fl = bf.buf;
+    double *d = od.buf, *q = oq.buf;
+    double I[INTEGRITY_MAX_N][9], F[9] = {0}, h[3] = {0}, Fi[9], rm[3], E[9], Cm[9], M[9];
+    for (long k = 0; k < n && ok == 1; k++) {
+        double Q[9];
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++)
+                Q[3 * i + j] = 0.5 * (P[9 * k + 3 * i + j] + P[9 * k + 3 * j + i]) + (i == j ? fl[k] : 0.0);
+        for (int i = 0; i < 9; i++) if (!isfinite(Q[i])) { ok = -1; break; }
+        if (ok == 1 && !gj_inverse(Q, 3, I[k])) ok = 0;
+    }
+    if (ok == 1) {
+        for (long k = 0; k < n; k++) {
+            double r[3];
+            mul_t3(C, C + 9 * k, M);
+            rotvec3(M, r);
+            for (int i = 0; i < 3; i++) {
+                for (int j = 0; j < 3; j++) F[3 * i + j] += I[k][3 * i + j];
+                h[i] += I[k][3 * i] * r[0] + I[k][3 * i + 1] * r[1] + I[k][3 * i + 2] * r[2];
+            }
+        }
+        if (!gj_inverse(F, 3, Fi)) ok = 0;
+    }
+    if (ok == 1) {
+        for (int i = 0; i < 3; i++) rm[i] = Fi[3 * i] * h[0] + Fi[3 * i + 1] * h[1] + Fi[3 * i + 2] * h[2];
+        expm3(rm, E);
+        for (int i = 0; i < 3; i++)                                     /* C_mean = C_0 E */
+            for (int j = 0; j < 3; j++)
+                Cm[3 * i + j] = C[3 * i] * E[j] + C[3 * i + 1] * E[3 + j] + C[3 * i + 2] * E[6 + j];
+        for (long k = 0; k < n; k++) {
+            double *dk = d + 3 * k;
+            mul_t3(Cm, C + 9 * k, M);
+            rotvec3(M, dk);
+            double s = 0.0;
+            for (int i = 0; i < 3; i++)
+                s += dk[i] * (I[k][3 * i] * dk[0] + I[k][3 * i + 1] * dk[1] + I[k][3 * i + 2] * dk[2]);
+            q[k] = s;
+        }
+    }
+    PyBuffer_Release(&bc); PyBuffer_Release(&bp); PyBuffer_Release(&bf); PyBuffer_Release(&od);
+    PyBuffer_Release(&oq);
+    return PyLong_FromLong(ok);
+}
+
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS, "solve_attitude's QUEST path (see _solve.py)"},
     {"quest", py_quest, METH_VARARGS, "QUEST of weighted rows (see pipeline/_conditions.py)"},
@@ -1039,6 +1127,7 @@ static PyMethodDef methods[] = {
      "expected whitened residual moments of a weighted fit (see pipeline/_conditions.py)"},
     {"noise_fit", py_noise_fit, METH_VARARGS, "NoiseModel._fit (see pipeline/_conditions.py)"},
     {"motion_fit", py_motion_fit, METH_VARARGS, "fit_motion's normal equations (see pipeline/_motion.py)"},
+    {"integrity", py_integrity, METH_VARARGS, "check_integrity's weighted mean and chi2 (see pipeline/_integrity.py)"},
     {"mount_step", py_mount_step, METH_VARARGS, "one epoch of the mounts' running fit (see pipeline/_mounts.py)"},
     {NULL, NULL, 0, NULL}};
 

@@ -187,6 +187,42 @@ def _weighted(Cs, infos):
     return d, np.array([x @ I @ x for x, I in zip(d, infos)])
 
 
+#: check_integrity's weighted mean and chi2 compiled (``attitude._ckernels.integrity``);
+#: ``[False]``: the NumPy path, the tests' reference.
+_COMPILED = [True]
+
+
+def _infos(C_hor_from_deck, covariance_deck_rad2, model_sigma_arcsec):
+    """``(Cs, infos)``: the attitudes and ``inv(sym(P) + s^2 I)``; infos None when a
+    covariance is not finite."""
+    Cs = [np.asarray(C, float) for C in C_hor_from_deck]
+    infos = []
+    for P, s in zip(covariance_deck_rad2, model_sigma_arcsec):
+        Q = np.asarray(P, float)
+        Q = 0.5 * (Q + Q.T) + (float(s) * ASEC2RAD) ** 2 * np.eye(3)
+        if not np.all(np.isfinite(Q)):
+            return Cs, None
+        infos.append(np.linalg.inv(Q))
+    return Cs, infos
+
+
+def _compiled(C_hor_from_deck, covariance_deck_rad2, model_sigma_arcsec):
+    """``(d (n, 3), chi2_k (n,))`` of :func:`_weighted` by the compiled kernel, ``"unchecked"``
+    when a covariance is not finite, None when a matrix is singular there (or too many
+    sensors): the NumPy path decides."""
+    from shipstar.attitude._ckernels import integrity
+
+    n = len(model_sigma_arcsec)
+    if n > 16:
+        return None
+    C = np.ascontiguousarray(np.asarray(C_hor_from_deck, float).reshape(n, 3, 3))
+    P = np.ascontiguousarray(np.asarray(covariance_deck_rad2, float).reshape(n, 3, 3))
+    floor = np.array([(float(s) * ASEC2RAD) ** 2 for s in model_sigma_arcsec])
+    d, chi2_k = np.empty((n, 3)), np.empty(n)
+    ok = integrity(C, P, floor, d, chi2_k)
+    return (d, chi2_k) if ok == 1 else "unchecked" if ok == -1 else None
+
+
 def check_integrity(names, C_hor_from_deck, covariance_deck_rad2, model_sigma_arcsec=None,
                     p: float = FALSE_ALARM_PROBABILITY) -> Integrity:
     """Check the solved sensors' deck attitudes of one epoch against each other.
@@ -210,15 +246,16 @@ def check_integrity(names, C_hor_from_deck, covariance_deck_rad2, model_sigma_ar
         return Integrity()
     if model_sigma_arcsec is None:
         model_sigma_arcsec = [MODEL_SIGMA_ARCSEC] * n
-    Cs = [np.asarray(C, float) for C in C_hor_from_deck]
-    infos = []
-    for P, s in zip(covariance_deck_rad2, model_sigma_arcsec):
-        Q = np.asarray(P, float)
-        Q = 0.5 * (Q + Q.T) + (float(s) * ASEC2RAD) ** 2 * np.eye(3)
-        if not np.all(np.isfinite(Q)):
+    got = _compiled(C_hor_from_deck, covariance_deck_rad2, model_sigma_arcsec) if _COMPILED[0] else None
+    if got == "unchecked":
+        return Integrity()
+    if got is None:                          # the reference path (and any singular matrix)
+        Cs, infos = _infos(C_hor_from_deck, covariance_deck_rad2, model_sigma_arcsec)
+        if infos is None:
             return Integrity()
-        infos.append(np.linalg.inv(Q))
-    d, chi2_k = _weighted(Cs, infos)
+        d, chi2_k = _weighted(Cs, infos)
+    else:
+        d, chi2_k = got
     chi2 = float(chi2_k.sum())
     dof = 3 * (n - 1)
     limit = chi2_limit(dof, p)
@@ -228,6 +265,7 @@ def check_integrity(names, C_hor_from_deck, covariance_deck_rad2, model_sigma_ar
     if n == 2:
         suspect = names[int(np.argmax(chi2_k))]
     else:
+        Cs, infos = _infos(C_hor_from_deck, covariance_deck_rad2, model_sigma_arcsec)
         left = []
         for k in range(n):
             keep = [j for j in range(n) if j != k]
