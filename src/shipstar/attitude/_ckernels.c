@@ -356,11 +356,11 @@ static PyObject *py_quest(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
-/* Gauss-Jordan inverse with partial pivoting of an n x n (n <= 4), in place into inv;
- * 0 for an exactly zero pivot (numpy.linalg.inv's LinAlgError) */
+/* Gauss-Jordan inverse with partial pivoting of an n x n (n <= 10) into inv; 0 for an
+ * exactly zero pivot (numpy.linalg.inv's LinAlgError) */
 static int gj_inverse(const double *A, int n, double *inv)
 {
-    double M[4][8];
+    double M[10][20];
     for (int r = 0; r < n; r++)
         for (int c = 0; c < n; c++) { M[r][c] = A[n * r + c]; M[r][n + c] = r == c ? 1.0 : 0.0; }
     for (int col = 0; col < n; col++) {
@@ -693,38 +693,11 @@ static PyObject *py_motion_fit(PyObject *self, PyObject *args)
 
 #define TRK_NP 10
 
-/* inverse of an n x n matrix (n <= TRK_NP), Gauss-Jordan with partial pivoting; 0 when a
- * pivot is exactly 0 (numpy.linalg.inv raises LinAlgError there) */
-static int gj_inverse_n(const double *A, int n, double *inv)
-{
-    double M[TRK_NP][2 * TRK_NP];
-    for (int r = 0; r < n; r++)
-        for (int c = 0; c < n; c++) { M[r][c] = A[n * r + c]; M[r][n + c] = r == c ? 1.0 : 0.0; }
-    for (int col = 0; col < n; col++) {
-        int piv = col;
-        for (int r = col + 1; r < n; r++)
-            if (fabs(M[r][col]) > fabs(M[piv][col])) piv = r;
-        if (M[piv][col] == 0.0) return 0;
-        if (piv != col)
-            for (int c = 0; c < 2 * n; c++) { double t = M[col][c]; M[col][c] = M[piv][c]; M[piv][c] = t; }
-        double d = M[col][col];
-        for (int c = 0; c < 2 * n; c++) M[col][c] /= d;
-        for (int r = 0; r < n; r++) {
-            if (r == col || M[r][col] == 0.0) continue;
-            double f = M[r][col];
-            for (int c = 0; c < 2 * n; c++) M[r][c] -= f * M[col][c];
-        }
-    }
-    for (int r = 0; r < n; r++)
-        for (int c = 0; c < n; c++) inv[n * r + c] = M[r][n + c];
-    return 1;
-}
-
 /* g^T A^-1 g for an n x n A (n <= TRK_NP); 0 when A is singular */
 static int quad_inv(const double *A, const double *g, int n, double *out)
 {
     double I[TRK_NP * TRK_NP];
-    if (!gj_inverse_n(A, n, I)) return 0;
+    if (!gj_inverse(A, n, I)) return 0;
     double s = 0.0;
     for (int i = 0; i < n; i++) {
         double v = 0.0;
@@ -769,7 +742,7 @@ static int trk_fit(const Track *T, const unsigned char *keep, double *theta, dou
     double ridge = 1e-9 * (tr > 1.0 ? tr : 1.0);
     memcpy(A, Nk, sizeof(double) * n * n);
     for (int i = 0; i < n; i++) A[n * i + i] += ridge;
-    if (!gj_inverse_n(A, n, C)) return 0;
+    if (!gj_inverse(A, n, C)) return 0;
     double thb = 0.0, thNth = 0.0;
     for (int i = 0; i < n; i++) {
         double v = 0.0;
@@ -851,7 +824,7 @@ static PyObject *py_mount_step(PyObject *self, PyObject *args)
     }
     if (gate) {
         double Ii[9], S[9], v[3], XC[3 * TRK_NP];
-        if (!gj_inverse_n(info, 3, Ii)) goto fallback;
+        if (!gj_inverse(info, 3, Ii)) goto fallback;
         for (int i = 0; i < 3; i++) {
             double s = y[i];
             for (int j = 0; j < TRK_NP; j++) s -= X[TRK_NP * i + j] * theta_full[j];
