@@ -132,11 +132,17 @@ class MotionFit:
     def r(self, t_s: float, derivative: int = 0) -> np.ndarray:
         """``d^k r / dt^k`` (3,) at ``t_s`` (rad, rad/s, rad/s^2 for k = 0, 1, 2)."""
         tau = (float(t_s) - self.t_ref_s) / self.scale_s
-        out = np.zeros(3)
-        for j in range(derivative, self.degree + 1):
-            factor = math.perm(j, derivative)
-            out += factor * tau ** (j - derivative) * self.coef[j]
-        return out / self.scale_s ** derivative
+        coef = self.__dict__.get("_coef_rows")
+        if coef is None:                               # plain floats: the epoch asks ~6 times
+            coef = self.coef.tolist()
+            object.__setattr__(self, "_coef_rows", coef)
+        x = y = z = 0.0                                # the same sums, in the same order, as in NumPy
+        for j in range(derivative, len(coef)):
+            w = math.perm(j, derivative) * tau ** (j - derivative)
+            cx, cy, cz = coef[j]
+            x, y, z = x + w * cx, y + w * cy, z + w * cz
+        d = self.scale_s ** derivative
+        return np.array([x / d, y / d, z / d])
 
     def omega_at(self, t_s: float) -> np.ndarray:
         """Angular velocity (3,) rad/s of the body relative to the horizontal frame, body axes."""

@@ -37,9 +37,19 @@ CLOCK_OFFSET_SUFFIX = "+clock-offset"
 PARTIAL_SUFFIX = ".partial"
 
 
+_FORMATS = {d: f"{{:.{d}f}}".format for d in (2, 3, 6, 9)}
+
+
 def _fmt(x, digits: int) -> str:
     x = float(x)
-    return f"{x:.{digits}f}" if math.isfinite(x) else ""
+    return _FORMATS[digits](x) if math.isfinite(x) else ""
+
+
+def _sigmas_arcsec(att) -> tuple:
+    """``att.sigma_rad`` in arcsec in plain floats (a row's three; NaN where not positive)."""
+    c = att.covariance_rad2
+    return tuple(math.sqrt(v) * RAD2ASEC if v >= 0.0 else math.nan
+                 for v in (float(c[0, 0]), float(c[1, 1]), float(c[2, 2])))
 
 
 def _iso(jd1: float, jd2: float) -> str:
@@ -49,7 +59,7 @@ def _iso(jd1: float, jd2: float) -> str:
 
 
 def _row(time_utc, t_s, method, sensor, frame, att, rms_arcsec=math.nan, time_source="", integrity=None) -> list:
-    sig = att.sigma_rad * RAD2ASEC
+    sig = _sigmas_arcsec(att)
     checks = ["", "", ""] if integrity is None or not integrity.checked else \
         [integrity.label, _fmt(integrity.chi2, 2), integrity.suspect]
     return [time_utc, _fmt(t_s, 6), method, sensor, frame, "1" if att.solved else "0",
