@@ -304,15 +304,15 @@ def fuse_joint(sensors: Sequence[SensorStars], *, reject_outliers: bool = True) 
 
 def _deck_information(sensors, w_deck, sigma) -> np.ndarray:
     """(N, 3, 3) information matrices (rad^-2, deck axes) of every sensor's stars, stacked:
-    ``sigma^-2 (I - w w^T)`` for isotropic stars, ``R F R^T`` for given ones."""
+    ``sigma^-2 (I - w w^T)`` for isotropic stars, ``C_ds F C_ds^T`` for given ones."""
     info = []
     for s, wd_s, sig in zip(sensors, w_deck, sigma):
         if s.info_per_rad2 is None:            # isotropic: sigma^-2 (I - w w^T)
             wd = wd_s / np.linalg.norm(wd_s, axis=1, keepdims=True)
             info.append(sig[:, None, None] ** -2 * (np.eye(3) - wd[:, :, None] * wd[:, None, :]))
         else:
-            R = np.asarray(s.C_deck_from_sensor, float)
-            info.append(R @ np.asarray(s.info_per_rad2, float) @ R.T)
+            C_ds = np.asarray(s.C_deck_from_sensor, float)        # sensor axes -> deck axes
+            info.append(C_ds @ np.asarray(s.info_per_rad2, float) @ C_ds.T)
     return np.concatenate(info)
 
 

@@ -553,7 +553,7 @@ def run_measure(job: MeasureJob, sources, out, *, truth=None, comments=(), worke
                 "bytes": writer.tell(), "resume_t_s": next_chunk * chunk_s if nxt is None else nxt,
                 "stats": stats.state(), "warnings": seen_warnings, "n_epochs_written": n_written,
                 "mounts": engine.mounts_record(next_chunk)})
-            engine.drop_records({j for j in range(next_chunk, len(plan))})
+            engine.drop_records(set(range(next_chunk, len(plan))))
     except BaseException:
         runner.close(abort=True)
         try:                                  # the epochs held for the smoothing are finished

@@ -69,6 +69,7 @@ Without a clock offset or flexure nothing is applied (the rows are those of a ri
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -197,14 +198,14 @@ def _frozen_track(tr):
 
 
 _DESIGN_EYE = np.hstack([np.eye(3), np.zeros((3, _NP - 3))])
-_DIAG = (np.arange(3), np.arange(3))
+_I3 = np.arange(3)
 
 
 def _design(a_deg, omega_asec_per_ms) -> np.ndarray:
     """(3, 10) regressors of one epoch: s, G (roll, pitch), delta (ms)."""
     X = _DESIGN_EYE.copy()
-    X[_DIAG[0], _DIAG[1] + 3] = a_deg[0]
-    X[_DIAG[0], _DIAG[1] + 6] = a_deg[1]
+    X[_I3, _I3 + 3] = a_deg[0]
+    X[_I3, _I3 + 6] = a_deg[1]
     X[:, 9] = omega_asec_per_ms
     return X
 
@@ -215,19 +216,15 @@ _ZERO3 = np.zeros(3)
 #: mount_step's constants, in its order.
 _TRACK_PARAMS = np.array([MEMORY_S, MIN_MONITOR_EPOCHS, GATE_CHI2, MIN_EPOCHS, MAX_LAG_S, MAX_RHO, VARIANCE_MEMORY_S,
                           MIN_WAVE_STD_DEG, ENTER_SIGMAS, STAY_SIGMAS, MAX_APPLY_SIGMA_S], dtype=np.float64)
-_LIMITS: list = []
-
-
+@functools.cache
 def _track_limits() -> np.ndarray:
     """mount_step's chi-square limits: the gain groups' (3 dof) to stay and to enter, then
     the flexure's to stay and to enter for 0..9 dof (0 unused)."""
-    if not _LIMITS:
-        from shipstar.pipeline._integrity import chi2_limit
+    from shipstar.pipeline._integrity import chi2_limit
 
-        stay = [0.0] + [chi2_limit(k, STAY_P) for k in range(1, 10)]
-        enter = [0.0] + [chi2_limit(k, ENTER_P) for k in range(1, 10)]
-        _LIMITS.append(np.array([chi2_limit(3, GAIN_STAY_P), chi2_limit(3, GAIN_ENTER_P), *stay, *enter]))
-    return _LIMITS[0]
+    stay = [0.0] + [chi2_limit(k, STAY_P) for k in range(1, 10)]
+    enter = [0.0] + [chi2_limit(k, ENTER_P) for k in range(1, 10)]
+    return np.array([chi2_limit(3, GAIN_STAY_P), chi2_limit(3, GAIN_ENTER_P), *stay, *enter])
 
 
 class _Track:
@@ -553,6 +550,9 @@ class MountEstimator:
         self.reference = int(reference)
         self.others = [k for k in range(len(self.configs)) if k != self.reference]
         self._tracks = {k: _Track() for k in self.others}
+        ref = getattr(self.configs[self.reference], "installation", None)
+        # the dock calibration's sems of the reference and each sensor (the flexure summary's)
+        self._sems = {k: _sems(ref) + _sems(self.configs[k].installation) for k in self.others}
 
     def state(self) -> dict:
         """The estimator's state, JSON-able (a checkpoint's: ``measure --resume`` continues
@@ -670,9 +670,7 @@ class MountEstimator:
         return {name: tr.flexure_block(sems) for name, tr, sems in self._flexure_entries()}
 
     def _flexure_entries(self) -> list:
-        ref = self.configs[self.reference]
-        return [(self.configs[k].name, tr, _sems(getattr(ref, "installation", None)) + _sems(self.configs[k].installation))
-                for k, tr in self._tracks.items()]
+        return [(self.configs[k].name, tr, self._sems[k]) for k, tr in self._tracks.items()]
 
 
 def monitor_rows(epoch) -> list:
