@@ -225,6 +225,33 @@ def test_plain_images_are_read_directly_as_astropy_reads_them(tmp_path, monkeypa
     assert image.flags.writeable and image.flags.c_contiguous
 
 
+@pytest.mark.parametrize("n_history", [0, 30, 70, 110, 400])
+def test_headers_of_any_length_are_read_as_astropy_reads_them(tmp_path, monkeypatch, n_history):
+    """Headers of 1, 2, 3, 4 and 12 blocks: the direct reader reads two blocks first and the
+    rest only without an END card among them; cards, header length and pixels as astropy's."""
+    from astropy.io import fits
+
+    from shipstar._fitsio import _quick_primary_header, _quick_read
+
+    data = np.arange(37 * 53, dtype=np.int16).reshape(37, 53)
+    path = tmp_path / "long.fits"
+    hdu = fits.PrimaryHDU(data)
+    hdu.header["DATE-OBS"] = START
+    for k in range(n_history):
+        hdu.header.add_history(f"line {k} of a long processing history")
+    hdu.header["EXPTIME"] = 0.08                       # after the history: read from the last block
+    hdu.header["SENSOR"] = "A1"
+    hdu.writeto(path)
+    n_blocks = len(fits.getheader(path).tostring()) // 2880
+    assert n_blocks == {0: 1, 30: 2, 70: 3, 110: 4, 400: 12}[n_history]
+    assert _quick_primary_header(path) is not None
+    quick = _quick_read(path, "start")
+    assert quick is not None
+    np.testing.assert_array_equal(quick[0], _astropy_pixels(path))
+    assert quick[1].exposure_s == 0.08 and quick[1].sensor == "A1"
+    assert read_fits_header(path) == _via_astropy(monkeypatch, read_fits_header, path)
+
+
 @pytest.mark.parametrize("cards", [[("BSCALE", 2.0)], [("BZERO", 10.0)], [("BLANK", 7)]])
 def test_scaled_images_are_left_to_astropy(tmp_path, cards):
     from astropy.io import fits

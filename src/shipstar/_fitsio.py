@@ -81,6 +81,10 @@ _DAY_S = 86400.0
 _CARD = 80
 _BLOCK = 2880
 _MAX_HEADER_BLOCKS = 36
+#: Blocks read first (most headers fit in one): the rest up to :data:`_MAX_HEADER_BLOCKS`
+#: only when their END card is not among them (reading 36 blocks of every frame cost
+#: 46 us against 10 us for two, in the 1800-frame scan of a session 0.06 s).
+_FIRST_HEADER_BLOCKS = 2
 _EXPOSURE_KEYS = ("EXPTIME", "EXPOSURE")
 _QUICK_KEYS = frozenset(("NAXIS", "NAXIS1", "NAXIS2", "DATE-OBS", "DATE-BEG", "DATE-AVG", "DATE-END", "EXPTIME",
                          "EXPOSURE", "TIMESYS", "SENSOR", "INSTRUME", "ROWORDER", "SITELAT", "SITELONG",
@@ -316,11 +320,27 @@ def _quick_cards(head: bytes):
     return cards, header_bytes
 
 
+_END_CARD = b"END" + b" " * 77
+
+
+def _read_head(fh) -> bytes:
+    """The first bytes of a FITS file for its primary header: :data:`_FIRST_HEADER_BLOCKS`
+    blocks, or :data:`_MAX_HEADER_BLOCKS` when no END card starts a card among them."""
+    head = fh.read(_BLOCK * _FIRST_HEADER_BLOCKS)
+    if len(head) == _BLOCK * _FIRST_HEADER_BLOCKS:
+        i = head.find(_END_CARD)
+        while i != -1 and i % _CARD:
+            i = head.find(_END_CARD, i + 1)
+        if i == -1:
+            head += fh.read(_BLOCK * (_MAX_HEADER_BLOCKS - _FIRST_HEADER_BLOCKS))
+    return head
+
+
 def _quick_primary_header(path: Path) -> dict | None:
     """The cards shipstar uses of a primary 2-D image HDU (:func:`_quick_cards`), or None."""
     try:
         with open(path, "rb") as fh:
-            head = fh.read(_BLOCK * _MAX_HEADER_BLOCKS)
+            head = _read_head(fh)
     except OSError:
         return None
     quick = _quick_cards(head)
@@ -372,7 +392,7 @@ def _quick_read(path: Path, date_obs_is: str | None):
     extensions, a short file...): astropy reads those (and words their errors)."""
     try:
         with open(path, "rb") as fh:
-            quick = _quick_cards(fh.read(_BLOCK * _MAX_HEADER_BLOCKS))
+            quick = _quick_cards(_read_head(fh))
             if quick is None:
                 return None
             cards, header_bytes = quick
@@ -430,7 +450,7 @@ def file_is_complete(path) -> tuple[bool, str]:
     try:
         size = path.stat().st_size
         with open(path, "rb") as fh:
-            head = fh.read(_BLOCK * _MAX_HEADER_BLOCKS)
+            head = _read_head(fh)
     except OSError as exc:
         return False, f"{type(exc).__name__}: {exc.strerror or exc}"
     if len(head) < _BLOCK:
