@@ -212,7 +212,7 @@ def ship_attitude_from_sensor(C_hor_from_sensor, C_deck_from_sensor, covariance_
     """
     C_hs = np.asarray(C_hor_from_sensor, float)
     C_ds = np.asarray(C_deck_from_sensor, float)
-    if C_hs.shape != (3, 3) or C_ds.shape != (3, 3) or not (np.all(np.isfinite(C_hs)) and np.all(np.isfinite(C_ds))):
+    if C_hs.shape != (3, 3) or C_ds.shape != (3, 3) or not (np.isfinite(C_hs).all() and np.isfinite(C_ds).all()):
         raise ShipstarError("sensor attitude and installation matrix must be finite 3x3 rotation matrices")
     C_hd = C_hs @ C_ds.T
     cov_deck = None
@@ -272,6 +272,7 @@ def fuse_joint(sensors: Sequence[SensorStars], *, reject_outliers: bool = True) 
         With method ``"joint"`` and the covariance of (heading, pitch, roll).
     """
     from shipstar.attitude import solve_attitude
+    from shipstar.attitude._solve import per_vector
 
     if len(sensors) == 0:
         return ShipAttitude.failed("no sensor data", "joint")
@@ -283,7 +284,7 @@ def fuse_joint(sensors: Sequence[SensorStars], *, reject_outliers: bool = True) 
             raise ShipstarError(f"sensor star arrays must both be (N, 3), got {w.shape} and {v.shape}")
         w_deck.append(w @ np.asarray(s.C_deck_from_sensor, float).T)
         v_hor.append(v)
-        sigma.append(np.broadcast_to(np.asarray(s.sigma_rad, float), (w.shape[0],)))
+        sigma.append(per_vector(s.sigma_rad, w.shape[0]))
     w_all, v_all, sig_all = np.concatenate(w_deck), np.concatenate(v_hor), np.concatenate(sigma)
     anisotropic = any(s.info_per_rad2 is not None for s in sensors)
     # the stars' information matrices (deck axes): given by the solver when anisotropic,

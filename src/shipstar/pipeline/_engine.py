@@ -434,7 +434,9 @@ class SessionEngine:
                            self.options, self.roles, reference=self.reference, variance_factor=vf)
         if self._mounts is not None:
             shifts = [0.0 if p is None else t_k + o - self.t_s(p) for p, o in zip(paired, offsets)]
-            epoch = replace(epoch, mounts=self._mounts.update(t_k, epoch, paired, shifts, configs, fit))
+            # a held epoch's monitor is that of its release (_smoothed)
+            epoch = replace(epoch, mounts=self._mounts.update(t_k, epoch, paired, shifts, configs, fit,
+                                                              with_monitor=self.smooth_lag_s <= 0.0))
         self.n_epochs += 1
         self._motion.prune(t_k - self.smooth_lag_s)     # the held epochs' deck motion stays
         rows.sort(key=lambda r: (r[0], r[1]))

@@ -200,7 +200,7 @@ def _infos(C_hor_from_deck, covariance_deck_rad2, model_sigma_arcsec):
     for P, s in zip(covariance_deck_rad2, model_sigma_arcsec):
         Q = np.asarray(P, float)
         Q = 0.5 * (Q + Q.T) + (float(s) * ASEC2RAD) ** 2 * np.eye(3)
-        if not np.all(np.isfinite(Q)):
+        if not np.isfinite(Q).all():
             return Cs, None
         infos.append(np.linalg.inv(Q))
     return Cs, infos

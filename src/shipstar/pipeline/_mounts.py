@@ -153,7 +153,9 @@ class MountsSnapshot:
     ----------
     monitor : tuple of (sensor, rot_arcsec (3,), sigma_arcsec (3,))
         The smoothed relative attitude of each non-reference mount at the epoch (deck
-        axes bow / up / starboard; NaN before :data:`MIN_MONITOR_EPOCHS` epochs).
+        axes bow / up / starboard; NaN before :data:`MIN_MONITOR_EPOCHS` epochs).  None
+        only inside the engine, while an epoch is held for the smoothing (it is set at the
+        epoch's release).
     time_offsets_s : dict
         ``{sensor: {"offset_s", "sigma_s", "applied"}}`` (the summary's ``time_offsets_s``).
     flexure : dict
@@ -395,7 +397,7 @@ class _Track:
             self.aa_sum *= lam
         self.t_last = t_s
         X = _design(a_deg, omega)
-        if self.n >= MIN_MONITOR_EPOCHS and np.all(np.isfinite(self.theta_full)):
+        if self.n >= MIN_MONITOR_EPOCHS and np.isfinite(self.theta_full).all():
             # innovations of the full model (a gain group left out of the model in use
             # must not gate the epochs that would bring it in)
             v = y_asec - X @ self.theta_full
@@ -467,7 +469,7 @@ class _Track:
     def _rules(self) -> None:
         from shipstar.pipeline._integrity import chi2_limit
 
-        if self.n < MIN_EPOCHS or not np.all(np.isfinite(self.theta)):
+        if self.n < MIN_EPOCHS or not np.isfinite(self.theta).all():
             return
         off, sig = self.clock()
         k = STAY_SIGMAS if self.clock_applied else ENTER_SIGMAS
@@ -485,7 +487,7 @@ class _Track:
 
     def phi(self, a_deg):
         """(rot (3,), sigma (3,)) arcsec of the flexure model at roll/pitch ``a_deg``."""
-        if not np.all(np.isfinite(self.theta)):
+        if not np.isfinite(self.theta).all():
             return np.full(3, math.nan), np.full(3, math.nan)
         X = _design(a_deg, np.zeros(3))[:, :9]
         rot = X @ self.theta[:9]
@@ -510,7 +512,7 @@ class _Track:
         out["static_arcsec"] = {ax: _num(r) for ax, r in zip(_AXES, rot)}
         out["static_sigma_arcsec"] = {ax: _num(s) for ax, s in zip(_AXES, sig)}
         amp, amp_sig = np.full(3, math.nan), np.full(3, math.nan)
-        if self.n_eff > 0 and np.all(np.isfinite(self.theta)):
+        if self.n_eff > 0 and np.isfinite(self.theta).all():
             m = self.a_mean()
             S = self.aa_sum / self.n_eff - np.outer(m, m)             # covariance of roll, pitch
             for i in range(3):
@@ -528,7 +530,7 @@ class _Track:
         tol = math.sqrt(sum(float(x) ** 2 for x in sem_arcsec if math.isfinite(float(x))))
         out["dock_sem_arcsec"] = _num(tol)
         comb = np.sqrt(sig ** 2 + tol ** 2)
-        out["installation_drift"] = bool(np.all(np.isfinite(rot)) and np.any(np.abs(rot) > 3.0 * comb))
+        out["installation_drift"] = bool(np.isfinite(rot).all() and (np.abs(rot) > 3.0 * comb).any())
         return out
 
 
@@ -606,7 +608,7 @@ class MountEstimator:
                 Phi = tr.phi_cov(a) * ASEC2RAD ** 2
                 changed = True
             var_ms2 = tr.cov[9, 9]
-            if tr.clock_applied and w is not None and np.all(np.isfinite(w)) and math.isfinite(var_ms2):
+            if tr.clock_applied and w is not None and np.isfinite(w).all() and math.isfinite(var_ms2):
                 Phi = Phi + np.outer(w, w) * var_ms2
                 changed = True
             if changed:
@@ -617,10 +619,13 @@ class MountEstimator:
     def _angles(fr_ref) -> np.ndarray:
         return np.array([fr_ref.ship.roll_rad, fr_ref.ship.pitch_rad]) * RAD2DEG
 
-    def update(self, t_s: float, epoch, paired, shifts_s, configs_used, motion) -> MountsSnapshot:
+    def update(self, t_s: float, epoch, paired, shifts_s, configs_used, motion, *,
+               with_monitor: bool = True) -> MountsSnapshot:
         """Add one fused epoch; ``shifts_s``: the time shift applied to each paired frame,
         ``configs_used``: the configs the epoch was fused with, ``motion``: the deck's motion
-        fit around the epoch (None: not known)."""
+        fit around the epoch (None: not known).  ``with_monitor=False``: the snapshot's
+        ``monitor`` is None, for a caller that sets it later (the engine's held epochs get
+        the monitor of their release)."""
         from shipstar.pipeline._motion import rotvec
 
         ref = self.reference
@@ -641,9 +646,10 @@ class MountEstimator:
                 if c.installation is not self.configs[k].installation:         # flexed: C_eff = Exp(phi) C
                     applied_phi = rotvec(C_ds @ self.configs[k].installation.C_deck_from_sensor.T) * RAD2ASEC
                 y = d + applied_phi + omega * (shifts_s[k] * 1e3)
-                if np.all(np.isfinite(y)) and np.all(np.isfinite(P)):
+                if np.isfinite(y).all() and np.isfinite(P).all():
                     tr.add(t_s, y, np.linalg.inv(P), a, omega)
-        return MountsSnapshot(self.monitor(fr_ref), self.time_offsets(), _FlexureLater(self._flexure_entries()))
+        return MountsSnapshot(self.monitor(fr_ref) if with_monitor else None, self.time_offsets(),
+                              _FlexureLater(self._flexure_entries()))
 
     def monitor(self, fr_ref) -> tuple:
         """``(sensor, rot_arcsec (3,), sigma_arcsec (3,))`` per non-reference sensor: the
