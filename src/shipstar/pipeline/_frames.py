@@ -164,13 +164,27 @@ def scan_frames(directory, *, date_obs_is: str = "start", check=None) -> list[Fr
     if not paths:
         raise ShipstarError(f"no FITS frames (*.fits, *.fit, *.fts, optionally .gz) in {d}")
     frames = []
-    for p in paths:
-        info = read_fits_header(p, date_obs_is=date_obs_is)
-        jd1, jd2 = info.mid_utc_jd()
-        if check is not None:
-            check(info)
-        frames.append(Frame(jd1, jd2, p.name, path=p, sensor=info.sensor_name, time_source=info.time_source,
-                            exposure_s=info.exposure_s))
+    # a check that takes many frames at once (HeaderCheck.check_many) runs on the frames
+    # read so far when one cannot be read, and on all of them at the end: the first error
+    # in file order is raised, as one frame at a time would
+    many = getattr(check, "check_many", None)
+    infos = []
+    try:
+        for p in paths:
+            info = read_fits_header(p, date_obs_is=date_obs_is)
+            jd1, jd2 = info.mid_utc_jd()
+            if many is not None:
+                infos.append(info)
+            elif check is not None:
+                check(info)
+            frames.append(Frame(jd1, jd2, p.name, path=p, sensor=info.sensor_name, time_source=info.time_source,
+                                exposure_s=info.exposure_s))
+    except ShipstarError:
+        if many is not None:
+            many(infos)
+        raise
+    if many is not None:
+        many(infos)
     for a, b in zip(frames, frames[1:]):
         if b.seconds_since(a.utc_jd1, a.utc_jd2) <= 0.0:
             raise ShipstarError(f"frames out of time order: {b.label} (mid-exposure {b.utc_iso}) is not later than "

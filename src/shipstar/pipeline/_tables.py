@@ -214,6 +214,28 @@ class _TimeTable:
         """ShipstarError when a time is not covered (see :meth:`_weights`)."""
         self._weights(utc_jd1, utc_jd2)
 
+    def interpolate_many(self, values, utc_jd1, utc_jd2):
+        """``(v (N,), covered (N,) bool)``: the column ``values`` at many times (arrays
+        ``(N,)``), interpolated as :meth:`_weights` and :func:`_interp` do one time (the same
+        clamping), with ``covered`` False where :meth:`_weights` would refuse the time
+        (outside the table; a gap longer than it allows): ``v`` there is meaningless."""
+        jd1, jd2 = np.atleast_1d(np.asarray(utc_jd1, float)), np.atleast_1d(np.asarray(utc_jd2, float))
+        values = np.asarray(values, float)
+        if getattr(self, "covers_all", False) or len(self.t_s) == 1:
+            covered = np.ones(jd1.shape, bool)
+            if not getattr(self, "covers_all", False):
+                t = ((jd1 - self.jd1_0) + (jd2 - self.jd2_0)) * DAY_S
+                covered = (t >= self.t_s[0] - _EDGE_S) & (t <= self.t_s[-1] + _EDGE_S)
+            return np.full(jd1.shape, float(values[0])), covered
+        t = ((jd1 - self.jd1_0) + (jd2 - self.jd2_0)) * DAY_S
+        covered = (t >= self.t_s[0] - _EDGE_S) & (t <= self.t_s[-1] + _EDGE_S)
+        i = np.clip(np.searchsorted(self.t_s, t) - 1, 0, len(self.t_s) - 2)
+        gap = self.t_s[i + 1] - self.t_s[i]
+        covered &= ~((gap > self._max_gap_s + _GAP_ROUNDING_S) & (t > self.t_s[i]) & (t < self.t_s[i + 1]))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f = np.clip((t - self.t_s[i]) / gap, 0.0, 1.0)
+        return (1.0 - f) * values[i] + f * values[i + 1], covered
+
     def check_covers_all(self, utc_jd1, utc_jd2) -> None:
         """ShipstarError naming the first of many times (arrays ``(N,)``) that is not covered:
         outside the table, or in a gap longer than the table allows."""
