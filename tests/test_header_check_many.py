@@ -18,8 +18,12 @@ import pytest
 from shipstar._fitsio import FitsFrameInfo
 from shipstar.errors import ShipstarError
 from shipstar.pipeline import Track, WeatherTable
-from shipstar.pipeline._header_check import (POSITION_TOLERANCE_DEG, PRESSURE_TOLERANCE_HPA,
-                                             TEMPERATURE_TOLERANCE_C, HeaderCheck)
+from shipstar.pipeline._header_check import (
+    POSITION_TOLERANCE_DEG,
+    PRESSURE_TOLERANCE_HPA,
+    TEMPERATURE_TOLERANCE_C,
+    HeaderCheck,
+)
 from shipstar.units import DAY_S
 
 JD1 = 2461000.5
