@@ -300,8 +300,12 @@ def test_truncated_and_corrupt_files_are_one_line_errors(tmp_path):
             with pytest.raises(ShipstarError, match=message) as info:
                 call(tmp_path / name)
             assert "\n" not in str(info.value), (name, call)
-    with pytest.raises(ShipstarError, match="not a FITS file"):
-        read_fits(tmp_path)
+    for call in (read_fits, read_fits_image, read_fits_header, read_fits_frame):
+        with pytest.raises(ShipstarError, match="is a directory, not a FITS file"):
+            call(tmp_path)
+    for call in (read_fits_header,):
+        with pytest.raises(ShipstarError, match="no such file"):
+            call(tmp_path / "missing.fits")
 
 
 def test_no_image_and_cubes(tmp_path):

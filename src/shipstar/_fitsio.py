@@ -550,9 +550,10 @@ def _open(path: Path, *, with_data: bool, date_obs_is: str | None):
     """``(image or None, FitsFrameInfo or None)``; ``date_obs_is=None``: the image only
     (only ``ROWORDER`` is read from the header)."""
     if with_data:
-        quick = _quick_read(path, date_obs_is)
+        quick = _quick_read(path, date_obs_is)    # None for a missing file or a directory too
         if quick is not None:
             return quick
+    path = _check_path(path)                      # their messages before astropy's
     from astropy.io import fits
 
     name = path.name
@@ -610,11 +611,11 @@ def read_fits_header(path, *, date_obs_is: str = "start") -> FitsFrameInfo:
     ShipstarError
         Missing or corrupt file, no 2-D image, a malformed date or keyword.
     """
-    path = _check_path(path)
-    quick = _quick_primary_header(path)
+    path = Path(path)
+    quick = _quick_primary_header(path)          # None for a missing file or a directory too
     if quick is not None:
         return _info(quick.get, (int(quick["NAXIS2"]), int(quick["NAXIS1"])), path.name, date_obs_is)
-    return _open(path, with_data=False, date_obs_is=date_obs_is)[1]
+    return _open(_check_path(path), with_data=False, date_obs_is=date_obs_is)[1]
 
 
 def read_fits(path, *, date_obs_is: str = "start") -> tuple[np.ndarray, FitsFrameInfo]:
@@ -628,10 +629,10 @@ def read_fits(path, *, date_obs_is: str = "start") -> tuple[np.ndarray, FitsFram
     ShipstarError
         Missing, truncated or corrupt file, no single 2-D image, a malformed date or keyword.
     """
-    return _open(_check_path(path), with_data=True, date_obs_is=date_obs_is)
+    return _open(Path(path), with_data=True, date_obs_is=date_obs_is)
 
 
 def read_fits_image(path) -> np.ndarray:
     """Only the image ``(H, W)`` of :func:`read_fits`: of the header only ``ROWORDER`` is
     used (a frame without a time, or with unusual keywords, still gives its pixels)."""
-    return _open(_check_path(path), with_data=True, date_obs_is=None)[0]
+    return _open(Path(path), with_data=True, date_obs_is=None)[0]
