@@ -18,7 +18,11 @@ time of the command with its worker processes (``getrusage`` of the children: th
 CPU in every configuration means the difference in wall time is parallelism, not
 overhead).  Then the medians over ``--repeat`` and the ratios: 2 against 1 archive workers
 (target >= 1.8x on this 2-core machine; also the median of each repeat's own pair, run
-back to back: the robust figure when the host's speed drifts), serial measure against 2
+back to back: the robust figure when the host's speed drifts slowly; and each pair
+corrected for the host's speed of the moment, the ratio of the runs' wall time per second
+of their CPU time: the same work whose CPU time differs between the runs -- by up to 18 %
+on this shared host -- ran on a slower host, and a pair of 2.06x on 2 cores has been
+seen), serial measure against 2
 archive workers, and whether every CSV is byte-identical to serial measure's (md5; the code must not change
 while the benchmark runs).
 
@@ -149,6 +153,14 @@ def main(argv=None) -> int:
     pairs_p = [x1["process_s"] / x2["process_s"] for x1, x2 in zip(runs["dask1"], runs["dask2"])]
     print(f"median of the {len(pairs_w)} pairs: {statistics.median(pairs_w):.2f}x whole command "
           f"({', '.join(f'{x:.2f}' for x in pairs_w)}), {statistics.median(pairs_p):.2f}x processing")
+    # the same work (the same rows) took CPU times that differ by the host's speed of the
+    # moment (a shared host: up to ~20 % between two back-to-back runs); each run's wall time
+    # per second of its CPU removes that drift: the speed-up as if both ran on the same host
+    fixed = [(x1["wall_s"] / x1["cpu_s"]) / (x2["wall_s"] / x2["cpu_s"]) for x1, x2 in zip(runs["dask1"], runs["dask2"])]
+    drift = [x1["cpu_s"] / x2["cpu_s"] for x1, x2 in zip(runs["dask1"], runs["dask2"])]
+    print(f"pairs corrected for the host's speed (wall per CPU second): median {statistics.median(fixed):.2f}x "
+          f"({', '.join(f'{x:.2f}' for x in fixed)}); the pairs' CPU times, 1 against 2 workers: "
+          f"{', '.join(f'{x:.2f}' for x in drift)} (1.00 = the same host speed)")
     print(f"serial measure / archive 2 workers: {med['serial'][0] / med['dask2'][0]:.2f}x whole command; "
           f"archive 1 worker / serial measure: {med['dask1'][0] / med['serial'][0]:.2f}x")
     if "pool2" in med and runs["pool2"]:
