@@ -320,16 +320,20 @@ def swap_check(configs, sources, track, weather, options, *, max_frames: int = 5
         return None
     frames = [src.piece(0, min(max_frames, len(src))).load() for src in sources]
     cache: dict = {}
+    # a frame's attitude in the horizontal frame depends on the camera, not on the
+    # installation (a fresh processor's first frame has no motion fit to correct its
+    # streaks with): sensors of the same camera model share one solve of each frame
+    camera_of = [next(m for m in range(n) if configs[m].camera == configs[j].camera) for j in range(n)]
 
     def deck(i: int, j: int, k: int):
         """Sensor i's k-th frame processed as sensor j: C_hor_from_deck or None."""
-        key = (i, j, k)
+        key = (i, camera_of[j], k)
         if key not in cache:
-            proc = SensorProcessor(configs[j], track, weather, options)
+            proc = SensorProcessor(configs[camera_of[j]], track, weather, options)
             fr = proc.process(frames[i][k], k, 0.0)
-            cache[key] = (fr.horizontal.C_hor_from_sensor @ configs[j].installation.C_deck_from_sensor.T
-                          if fr.solved and fr.horizontal is not None else None)
-        return cache[key]
+            cache[key] = fr.horizontal.C_hor_from_sensor if fr.solved and fr.horizontal is not None else None
+        C_hs = cache[key]
+        return None if C_hs is None else C_hs @ configs[j].installation.C_deck_from_sensor.T
 
     for a in range(n):
         for b in range(a + 1, n):
