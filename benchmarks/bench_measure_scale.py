@@ -7,7 +7,9 @@ its worker processes) is sampled every 50 ms for its resident memory (summed):
    sensors at 10 frames/s): 60 s and 6 min (14,400 frames, 15 GB: this disk holds
    minutes, not hours), ``shipstar measure`` with ``--workers 2``;
 2. ``--workers 1`` against ``--workers 2`` on the 60 s session (the anchor: the same
-   command on one core; target >= 1.7x, the same CSV);
+   command on one core; target >= 1.7x, the same CSV; also each pair corrected for the
+   host's speed of the moment: the runs' wall time per second of their CPU time, whose
+   ratio for the same work moves with this shared host's speed);
 3. star lists, the stages after extraction (identification, sky, refraction, attitude,
    streak correction, pairing, fusion, the CSV): 60 s, 1 h and 10 h (720,000 frames), the
    centroids simulated chunk by chunk in the workers (the seeds' sea state, stars to Hp 8,
@@ -161,9 +163,13 @@ def _tree_rss_mb(proc) -> float:
 
 
 def run_sampled(cmd, cwd=None) -> tuple[float, float, str, str]:
-    """``(wall_s, peak_rss_mb, stdout, stderr)`` of a command, its process tree sampled."""
+    """``(wall_s, peak_rss_mb, stdout, stderr)`` of a command, its process tree sampled;
+    its CPU time (with its workers') in ``LAST_CPU_S[0]``."""
+    import resource
+
     import psutil
 
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=_ENV or None)
@@ -182,9 +188,15 @@ def run_sampled(cmd, cwd=None) -> tuple[float, float, str, str]:
     wall = time.perf_counter() - t0
     done.set()
     th.join()
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    LAST_CPU_S[0] = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
     if proc.returncode not in (0, 1):
         raise RuntimeError(f"{cmd[:6]} failed ({proc.returncode}): {err[-2000:]}")
     return wall, peak[0], out, err
+
+
+#: The CPU time of the last :func:`run_sampled` command and the processes it waited for (s).
+LAST_CPU_S = [0.0]
 
 
 def render_images(root: Path, duration_s: float) -> Path:
@@ -229,7 +241,8 @@ def measure_images(d: Path, workers: int) -> dict:
            "--install", str(d / "A1.toml"), str(d / "A2.toml"), "--track", str(d / "track.csv"), "--weather",
            str(d / "weather.csv"), "--out", str(out), "--workers", str(workers)]
     wall, peak, _, _ = run_sampled(cmd)
-    return {"frames": n, "wall_s": wall, "ms_per_frame": wall / n * 1000, "peak_rss_mb": peak, "csv": out}
+    return {"frames": n, "wall_s": wall, "ms_per_frame": wall / n * 1000, "peak_rss_mb": peak, "csv": out,
+            "cpu_s": LAST_CPU_S[0]}
 
 
 def _row(label, r, start=None) -> str:
@@ -277,7 +290,7 @@ def main() -> int:
         if "workers" in parts:
             t1 = measure_images(tiny, 1)
             print(_row("images 2 s (start-up), --workers 1", t1))
-            ratios = []
+            ratios, fixed, drift = [], [], []
             for k in range(args.repeat):            # alternated: this shared machine's speed drifts
                 r1 = measure_images(short, 1)
                 print(_row(f"images 60 s, --workers 1 (#{k + 1})", r1, t1))
@@ -285,11 +298,18 @@ def main() -> int:
                     r2 = measure_images(short, 2)
                     print(_row(f"images 60 s, --workers 2 (#{k + 1})", r2, t2))
                 ratios.append(r1["wall_s"] / r2["wall_s"])
+                # the same work's CPU time moves with the shared host's speed: each run's wall
+                # time per CPU second removes that drift from the pair
+                fixed.append((r1["wall_s"] / r1["cpu_s"]) / (r2["wall_s"] / r2["cpu_s"]))
+                drift.append(r1["cpu_s"] / r2["cpu_s"])
                 same = r1["csv"].read_bytes() == r2["csv"].read_bytes()
             speedup = float(np.median(ratios))
             print(f"--workers 2 vs 1 on 60 s, wall time, pairs run back to back: {', '.join(f'{r:.2f}' for r in ratios)}"
                   f"x, median {speedup:.2f}x (target >= 1.7x: {'PASS' if speedup >= 1.7 else 'FAIL'}); "
                   f"the same CSV: {same}")
+            print(f"  the pairs corrected for the host's speed (wall per CPU second): "
+                  f"{', '.join(f'{r:.2f}' for r in fixed)}x, median {float(np.median(fixed)):.2f}x; the pairs' CPU "
+                  f"times, 1 against 2 workers: {', '.join(f'{r:.2f}' for r in drift)} (1.00 = the same host speed)")
         if "images" in parts:
             long = render_images(root, 60.0 * args.image_minutes)
             read_once(long)
