@@ -22,7 +22,10 @@ back to back: the robust figure when the host's speed drifts slowly; and each pa
 corrected for the host's speed of the moment, the ratio of the runs' wall time per second
 of their CPU time: the same work whose CPU time differs between the runs -- by up to 18 %
 on this shared host -- ran on a slower host, and a pair of 2.06x on 2 cores has been
-seen), serial measure against 2
+seen; the correction assumes the same CPU time for the same work, and on 2026-11-29 the
+1-worker runs took 25.8-30.6 s of CPU against 25.0-26.5 s for 2 workers in alternated
+runs, which this host cannot tell from a real cost of the 1-worker run: read both
+figures), serial measure against 2
 archive workers, and whether every CSV is byte-identical to serial measure's (md5; the code must not change
 while the benchmark runs).
 
