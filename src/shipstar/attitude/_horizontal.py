@@ -241,7 +241,7 @@ def _failed(n: int, reason: str, w, v, refraction: str, model: str) -> Horizonta
 def sensor_attitude_hor(w_sensor, v_true_hor, weather, *, model: str = "erfa", refraction: str = "per-star",
                         sigma_rad=None, weights=None, reject_outliers: bool = True,
                         max_residual_arcsec=None, method: str = "quest",
-                        info_per_rad2=None) -> HorizontalAttitude:
+                        info_per_rad2=None, v_ref_hor=None) -> HorizontalAttitude:
     """Attitude of a sensor in the horizontal frame from its matched stars.
 
     Parameters
@@ -265,6 +265,12 @@ def sensor_attitude_hor(w_sensor, v_true_hor, weather, *, model: str = "erfa", r
     info_per_rad2 : array_like, shape (N, 3, 3), optional
         Per-star information matrices of the measured directions (sensor frame, rad^-2;
         relative unless ``sigma_rad`` is given), passed to ``solve_attitude``.
+    v_ref_hor : array_like, shape (N, 3), optional
+        The refracted reference directions an earlier call with the same ``v_true_hor``,
+        weather and model computed (its ``HorizontalAttitude.v_hor``: NaN rows below the
+        model's limit): with per-star refraction they do not depend on the measured
+        vectors, and are used instead of being computed again (a frame solved again from
+        its streak-corrected vectors).  Ignored with ``refraction="boresight"``.
 
     Returns
     -------
@@ -287,13 +293,21 @@ def sensor_attitude_hor(w_sensor, v_true_hor, weather, *, model: str = "erfa", r
     if w.shape != v_true.shape:
         raise ShipstarError(f"w_sensor and v_true_hor must have the same shape, got {w.shape} and {v_true.shape}")
     n = len(w)
-    ok = _above_limit(v_true, weather, model, refraction)
-    v_ref = np.full((n, 3), np.nan)
+    reuse = v_ref_hor is not None and refraction != "boresight"
+    if reuse:
+        v_ref = np.array(v_ref_hor, dtype=float)
+        if v_ref.shape != (n, 3):
+            raise ShipstarError(f"v_ref_hor must have shape ({n}, 3), got {v_ref.shape}")
+        ok = np.isfinite(v_ref).all(axis=1)
+    else:
+        ok = _above_limit(v_true, weather, model, refraction)
+        v_ref = np.full((n, 3), np.nan)
     if ok.sum() < 2:
         return _failed(n, f"{int(ok.sum())} of {n} stars above the refraction model's elevation limit; "
                           "at least 2 needed", w, v_ref, refraction, model)
     bore = boresight_true_hor(w[ok], v_true[ok]) if refraction == "boresight" else None
-    v_ref[ok] = reference_hor(v_true[ok], weather, model=model, refraction=refraction, boresight_hor=bore)
+    if not reuse:
+        v_ref[ok] = reference_hor(v_true[ok], weather, model=model, refraction=refraction, boresight_hor=bore)
     sig = None if sigma_rad is None else np.broadcast_to(np.asarray(sigma_rad, float), (n,))
     wts = None if weights is None else np.asarray(weights, float)
     if wts is not None and wts.shape != (n,):

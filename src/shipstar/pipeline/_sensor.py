@@ -300,15 +300,16 @@ def direction_info(camera, xy_px, cov_px2, shape=None, w_sensor=None, floor_px: 
     return np.swapaxes(whiten, 1, 2) @ Vi @ whiten, whiten, G
 
 
-def _solve_hor(w_sensor, inputs: _SolveInputs, weather, options):
-    """``sensor_attitude_hor`` of measured vectors ``w_sensor`` (N, 3) against ``inputs``."""
+def _solve_hor(w_sensor, inputs: _SolveInputs, weather, options, v_ref_hor=None):
+    """``sensor_attitude_hor`` of measured vectors ``w_sensor`` (N, 3) against ``inputs``
+    (``v_ref_hor``: the refracted references of an earlier solve of the same stars)."""
     from shipstar.attitude._horizontal import sensor_attitude_hor
 
     return sensor_attitude_hor(w_sensor, inputs.v_true_hor, weather, model=options.refraction_model,
                                refraction=options.refraction, sigma_rad=inputs.sigma_rad, weights=inputs.weights,
                                info_per_rad2=inputs.info_per_rad2,
                                reject_outliers=options.reject_outliers,
-                               max_residual_arcsec=options.max_residual_arcsec)
+                               max_residual_arcsec=options.max_residual_arcsec, v_ref_hor=v_ref_hor)
 
 
 def ship_from_horizontal(h, installation):
@@ -339,7 +340,8 @@ def resolve_frame(fr: FrameResult, w_sensor, installation, options, streak_corre
         Recorded in the result (:attr:`FrameResult.streak_correction_arcsec`).
     """
     t0 = time.perf_counter()
-    h = _solve_hor(w_sensor, fr.solve_inputs, fr.weather, options)
+    # the same stars, weather and model: their refracted references are the first solve's
+    h = _solve_hor(w_sensor, fr.solve_inputs, fr.weather, options, v_ref_hor=fr.horizontal.v_hor)
     ship = ship_from_horizontal(h, installation)
     return replace(fr, solved=bool(h.solved), reason=h.reason, horizontal=h, ship=ship,
                    elapsed_s=fr.elapsed_s + time.perf_counter() - t0,
