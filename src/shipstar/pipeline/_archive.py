@@ -60,7 +60,9 @@ STREAM_FRAMES = 20
 #: Dask settings of a LocalCluster (and of this process): without the statistical profiler
 #: (a stack sample of the busy thread every 10 ms), the GIL monitor and the 20 ms event-loop
 #: tick, which together cost an idle worker and this process 4 % of a core each (measured:
-#: 0.55 and 0.51 s of CPU in 15 s idle, against 0.05 and 0.10 s with these).
+#: 0.55 and 0.51 s of CPU in 15 s idle, against 0.05 and 0.10 s with these; on a slower,
+#: busier day of the same host this process took 0.3-0.6 s per 10 s idle with these, most
+#: of it the two workers' heartbeats, every 0.5 s for a cluster this small).
 QUIET_DASK = {"distributed.worker.profile.enabled": False, "distributed.admin.system-monitor.gil.enabled": False,
               "distributed.admin.tick.interval": "1s", "distributed.worker.memory.monitor-interval": "1s",
               "distributed.admin.system-monitor.interval": "2s"}
