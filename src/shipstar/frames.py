@@ -108,7 +108,7 @@ def _yzx_angles(C):
     a = np.arctan2(C[..., 2, 0], C[..., 0, 0])
     c = -np.arctan2(C[..., 1, 2], C[..., 1, 1])
     locked = np.hypot(C[..., 0, 0], C[..., 2, 0]) < GIMBAL_COS_TOL
-    if np.asarray(locked).any():
+    if locked.any():
         a_locked = np.arctan2(-C[..., 0, 2], C[..., 2, 2])
         a = np.where(locked, a_locked, a)
         c = np.where(locked, 0.0, c)
@@ -233,7 +233,7 @@ def _north_east_at(b):
     east = np.cross(z, b)
     n_e = np.linalg.norm(east, axis=-1, keepdims=True)
     pole = n_e[..., 0] < 1e-12
-    if np.asarray(pole).any():
+    if pole.any():
         east = np.where(pole[..., None], np.array([0.0, 1.0, 0.0]), east)
         n_e = np.where(pole[..., None], 1.0, n_e)
     east = east / n_e

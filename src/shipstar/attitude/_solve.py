@@ -191,7 +191,7 @@ def _bad_rows(w, v):
     if not finite.all():
         return f"non-finite (NaN/inf) input vectors at rows {np.flatnonzero(~finite).tolist()}"
     zero = (np.linalg.norm(w, axis=1) == 0) | (np.linalg.norm(v, axis=1) == 0)
-    if np.asarray(zero).any():
+    if zero.any():
         return f"zero-length input vectors at rows {np.flatnonzero(zero).tolist()}"
     return ""
 
