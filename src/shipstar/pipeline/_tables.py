@@ -214,43 +214,47 @@ class _TimeTable:
         """ShipstarError when a time is not covered (see :meth:`_weights`)."""
         self._weights(utc_jd1, utc_jd2)
 
-    def interpolate_many(self, values, utc_jd1, utc_jd2):
-        """``(v (N,), covered (N,) bool)``: the column ``values`` at many times (arrays
-        ``(N,)``), interpolated as :meth:`_weights` and :func:`_interp` do one time (the same
-        clamping), with ``covered`` False where :meth:`_weights` would refuse the time
-        (outside the table; a gap longer than it allows): ``v`` there is meaningless."""
+    def _located(self, utc_jd1, utc_jd2):
+        """``(t_s, i, f, covered)`` of many times (arrays ``(N,)``): seconds since the table's
+        first row, the row before each time and the fraction to the next, clamped as
+        :meth:`_weights` clamps them (0 and 0.0 for a one-row or fixed table), and whether
+        :meth:`_weights` would take the time (False for NaN)."""
         jd1, jd2 = np.atleast_1d(np.asarray(utc_jd1, float)), np.atleast_1d(np.asarray(utc_jd2, float))
-        values = np.asarray(values, float)
-        if getattr(self, "covers_all", False) or len(self.t_s) == 1:
-            covered = np.ones(jd1.shape, bool)
-            if not getattr(self, "covers_all", False):
-                t = ((jd1 - self.jd1_0) + (jd2 - self.jd2_0)) * DAY_S
-                covered = (t >= self.t_s[0] - _EDGE_S) & (t <= self.t_s[-1] + _EDGE_S)
-            return np.full(jd1.shape, float(values[0])), covered
         t = ((jd1 - self.jd1_0) + (jd2 - self.jd2_0)) * DAY_S
+        i, f = np.zeros(t.shape, np.int64), np.zeros(t.shape)
+        if getattr(self, "covers_all", False):
+            return t, i, f, np.ones(t.shape, bool)
         covered = (t >= self.t_s[0] - _EDGE_S) & (t <= self.t_s[-1] + _EDGE_S)
+        if len(self.t_s) == 1:
+            return t, i, f, covered
         i = np.clip(np.searchsorted(self.t_s, t) - 1, 0, len(self.t_s) - 2)
         gap = self.t_s[i + 1] - self.t_s[i]
         covered &= ~((gap > self._max_gap_s + _GAP_ROUNDING_S) & (t > self.t_s[i]) & (t < self.t_s[i + 1]))
         with np.errstate(divide="ignore", invalid="ignore"):
             f = np.clip((t - self.t_s[i]) / gap, 0.0, 1.0)
+        return t, i, f, covered
+
+    def interpolate_many(self, values, utc_jd1, utc_jd2):
+        """``(v (N,), covered (N,) bool)``: the column ``values`` at many times (arrays
+        ``(N,)``), interpolated as :meth:`_weights` and :func:`_interp` do one time, with
+        ``covered`` False where :meth:`_weights` would refuse the time (outside the table; a
+        gap longer than it allows): ``v`` there is meaningless."""
+        _, i, f, covered = self._located(utc_jd1, utc_jd2)
+        values = np.asarray(values, float)
+        if len(values) == 1:
+            return np.full(i.shape, float(values[0])), covered
         return (1.0 - f) * values[i] + f * values[i + 1], covered
 
     def check_covers_all(self, utc_jd1, utc_jd2) -> None:
         """ShipstarError naming the first of many times (arrays ``(N,)``) that is not covered:
-        outside the table, or in a gap longer than the table allows."""
-        if getattr(self, "covers_all", False):
-            return
+        outside the table, or in a gap longer than the table allows (NaN times are not
+        judged here)."""
         jd1, jd2 = np.atleast_1d(np.asarray(utc_jd1, float)), np.atleast_1d(np.asarray(utc_jd2, float))
-        if jd1.size == 0:
+        if getattr(self, "covers_all", False) or jd1.size == 0:
             return
-        t = ((jd1 - self.jd1_0) + (jd2 - self.jd2_0)) * DAY_S
-        bad = (t < self.t_s[0] - _EDGE_S) | (t > self.t_s[-1] + _EDGE_S)
-        if len(self.t_s) > 1 and math.isfinite(self._max_gap_s):
-            i = np.clip(np.searchsorted(self.t_s, t) - 1, 0, len(self.t_s) - 2)
-            gap = self.t_s[i + 1] - self.t_s[i]
-            bad |= (gap > self._max_gap_s + _GAP_ROUNDING_S) & (t > self.t_s[i]) & (t < self.t_s[i + 1])
-        if np.any(bad):
+        t, _, _, covered = self._located(jd1, jd2)
+        bad = ~covered & ~np.isnan(t)
+        if bad.any():
             k = int(np.argmax(bad))
             self._weights(float(jd1[k]), float(jd2[k]))
 
