@@ -214,21 +214,22 @@ class HeaderCheck:
             return np.fromiter((math.nan if getattr(i, key) is None else getattr(i, key) for i in infos), float, n)
 
         if self.track is not None:
-            lat_h, lon_h = column("lat_deg"), column("lon_deg")
-            if np.isfinite(lat_h).any() or np.isfinite(lon_h).any():
+            lat_h_deg, lon_h_deg = column("lat_deg"), column("lon_deg")
+            if np.isfinite(lat_h_deg).any() or np.isfinite(lon_h_deg).any():
                 lat_rad, ok = self.track.interpolate_many(self.track.lat_rad, jd1, jd2)
                 lon_rad, _ = self.track.interpolate_many(self.track.lon_rad, jd1, jd2)
-                d_lat = np.abs(lat_h - np.degrees(lat_rad))
-                d_lon = np.abs(np.remainder(lon_h - np.degrees(lon_rad) + 180.0, 360.0) - 180.0)
-                tol_lon = POSITION_TOLERANCE_DEG / np.maximum(np.cos(lat_rad), 1e-3)
-                flag |= ok & ((d_lat > POSITION_TOLERANCE_DEG - 1e-7) | (d_lon > tol_lon * (1.0 - 1e-9) - 1e-7))
+                d_lat_deg = np.abs(lat_h_deg - np.degrees(lat_rad))
+                d_lon_deg = np.abs(np.remainder(lon_h_deg - np.degrees(lon_rad) + 180.0, 360.0) - 180.0)
+                tol_lon_deg = POSITION_TOLERANCE_DEG / np.maximum(np.cos(lat_rad), 1e-3)
+                flag |= ok & ((d_lat_deg > POSITION_TOLERANCE_DEG - 1e-7)
+                              | (d_lon_deg > tol_lon_deg * (1.0 - 1e-9) - 1e-7))
         if self.weather is not None:
-            p_h, t_h = column("pressure_hpa"), column("temperature_c")
-            if np.isfinite(p_h).any() or np.isfinite(t_h).any():
-                p, ok = self.weather.interpolate_many(self.weather.pressure_hpa, jd1, jd2)
-                t, _ = self.weather.interpolate_many(self.weather.temperature_c, jd1, jd2)
-                flag |= ok & ((np.abs(p_h - p) > PRESSURE_TOLERANCE_HPA - 0.006)
-                              | (np.abs(t_h - t) > TEMPERATURE_TOLERANCE_C - 0.006))
+            p_h_hpa, t_h_c = column("pressure_hpa"), column("temperature_c")
+            if np.isfinite(p_h_hpa).any() or np.isfinite(t_h_c).any():
+                p_hpa, ok = self.weather.interpolate_many(self.weather.pressure_hpa, jd1, jd2)
+                t_c, _ = self.weather.interpolate_many(self.weather.temperature_c, jd1, jd2)
+                flag |= ok & ((np.abs(p_h_hpa - p_hpa) > PRESSURE_TOLERANCE_HPA - 0.006)
+                              | (np.abs(t_h_c - t_c) > TEMPERATURE_TOLERANCE_C - 0.006))
         for k in np.flatnonzero(flag):
             self(infos[k])
 

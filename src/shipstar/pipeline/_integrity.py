@@ -332,8 +332,9 @@ def swap_check(configs, sources, track, weather, options, *, max_frames: int = 5
             proc = SensorProcessor(configs[camera_of[j]], track, weather, options)
             fr = proc.process(frames[i][k], k, 0.0)
             cache[key] = fr.horizontal.C_hor_from_sensor if fr.solved and fr.horizontal is not None else None
-        C_hs = cache[key]
-        return None if C_hs is None else C_hs @ configs[j].installation.C_deck_from_sensor.T
+        C_hor_from_sensor = cache[key]
+        return (None if C_hor_from_sensor is None
+                else C_hor_from_sensor @ configs[j].installation.C_deck_from_sensor.T)     # hor <- deck
 
     for a in range(n):
         for b in range(a + 1, n):
