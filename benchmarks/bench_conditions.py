@@ -97,10 +97,11 @@ def simulate_cmd(case: str, out: Path, duration_s: float) -> list:
     return cmd + ([] if case == "baseline" else ["--conditions", case])
 
 
-def measure_cmd(d: Path, installs) -> list:
+def measure_cmd(d: Path, installs, windowed_full_frame_every: int = 0) -> list:
     return _shipstar("measure", "--sensor", f"A1={d / 'A1'}", "--sensor", f"A2={d / 'A2'}", "--install", *installs,
                      "--track", d / "track.csv", "--weather", d / "weather.csv", "--out", d / "attitude.csv",
-                     "--monitor", d / "monitor.csv", "--json", "--workers", "1")
+                     "--monitor", d / "monitor.csv", "--json", "--workers", "1",
+                     "--windowed-full-frame-every", str(windowed_full_frame_every))
 
 
 # -- evaluation -------------------------------------------------------------------------------
@@ -280,6 +281,8 @@ def main() -> int:
     ap.add_argument("--workdir", type=Path, help="render here and keep (default a temporary directory)")
     ap.add_argument("--late-s", type=float, default=8.0, help="also the joint RMS from this time on (s, default 8)")
     ap.add_argument("--reuse", action="store_true", help="reuse sessions already rendered in --workdir")
+    ap.add_argument("--windowed-full-frame-every", type=int, default=0, metavar="N",
+                    help="measure with windowed tracking, a full frame every N (default 0: every frame whole)")
     ap.add_argument("--evaluate-only", action="store_true",
                     help="with --workdir: evaluate the sessions already measured there (summary.json, attitude.csv)")
     args = ap.parse_args()
@@ -332,7 +335,8 @@ def main() -> int:
                 continue
         t_sim = time.perf_counter() - t0
         d = root / case
-        meas = subprocess.Popen(measure_cmd(d, installs), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        meas = subprocess.Popen(measure_cmd(d, installs, args.windowed_full_frame_every), stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
         sim = start_sim(cases[i + 1]) if i + 1 < len(cases) else None        # overlaps the measurement
         t1 = time.perf_counter()
         out, err = meas.communicate()

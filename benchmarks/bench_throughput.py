@@ -28,7 +28,13 @@ each; target: whole chain <= 0.4x sep's extraction.  Also printed: shipstar's ex
 alone on the same frames (timed in the same rounds).  Threads are limited to one
 (``OMP_NUM_THREADS`` etc. set before NumPy loads).
 
-Run: ``python benchmarks/bench_throughput.py [--frames N] [--dir DIR] [--repeat R]``.
+Also printed: the same chain with windowed tracking (``PipelineOptions.windowed_full_frame_every``,
+``--windowed-full-frame-every N``, default 10: a tracked frame's stars measured in windows around
+their predicted places, a full frame every N), timed in the same rounds, as a ratio to the default
+chain and to sep.
+
+Run: ``python benchmarks/bench_throughput.py [--frames N] [--dir DIR] [--repeat R]
+[--windowed-full-frame-every N]``.
 """
 
 from __future__ import annotations
@@ -77,10 +83,10 @@ def make_session(directory: Path, frames: int) -> None:
     print(f"rendered {2 * frames} frames in {time.perf_counter() - t0:.1f} s into {directory}")
 
 
-def run_chain(directory: Path):
+def run_chain(directory: Path, windowed_full_frame_every: int = 0):
     from shipstar.calibrate.installation import load_installation
     from shipstar.camera import load_camera
-    from shipstar.pipeline import SensorConfig, Track, WeatherTable, process_session, scan_frames
+    from shipstar.pipeline import PipelineOptions, SensorConfig, Track, WeatherTable, process_session, scan_frames
 
     configs = []
     for name in ("A1", "A2"):
@@ -88,7 +94,8 @@ def run_chain(directory: Path):
         configs.append(SensorConfig(name, load_camera(inst.camera), inst))
     frames = [scan_frames(directory / c.name) for c in configs]
     return process_session(configs, frames, Track.read_csv(directory / "track.csv"),
-                           WeatherTable.read_csv(directory / "weather.csv"))
+                           WeatherTable.read_csv(directory / "weather.csv"),
+                           PipelineOptions(windowed_full_frame_every=windowed_full_frame_every))
 
 
 def time_chain(directory: Path, repeat: int):
@@ -156,6 +163,8 @@ def main():
     ap.add_argument("--frames", type=int, default=30, help="frames per sensor to render (default 30)")
     ap.add_argument("--dir", type=Path, help="reuse / keep the session here (default: a temporary directory)")
     ap.add_argument("--repeat", type=int, default=3, help="timed runs; the best is reported")
+    ap.add_argument("--windowed-full-frame-every", type=int, default=10, metavar="N",
+                    help="also time the chain with windowed tracking, a full frame every N (default 10; 0: not)")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         directory = args.dir or Path(tmp) / "sea"
@@ -170,11 +179,18 @@ def main():
         time_extract_once(images[:5], threshold)
         if sep_ok:
             time_sep_once(images32[:5], threshold)
-        best, best_sep, best_ex, result = np.inf, np.inf, np.inf, None
-        for _ in range(args.repeat):                          # interleaved: chain, sep, extraction
+        windowed = args.windowed_full_frame_every
+        if windowed:
+            run_chain(directory, windowed)
+        best, best_sep, best_ex, best_win, result = np.inf, np.inf, np.inf, np.inf, None
+        for _ in range(args.repeat):                          # interleaved: chain, sep, extraction, windowed
             t0 = time.perf_counter()
             result = run_chain(directory)
             best = min(best, time.perf_counter() - t0)
+            if windowed:
+                t0 = time.perf_counter()
+                result_win = run_chain(directory, windowed)
+                best_win = min(best_win, time.perf_counter() - t0)
             if sep_ok:
                 best_sep = min(best_sep, time_sep_once(images32, threshold))
             best_ex = min(best_ex, time_extract_once(images, threshold))
@@ -199,6 +215,13 @@ def main():
                   f"extraction alone / sep = {best_ex / best_sep:.2f}")
         else:
             print("\nsep is not installed (pip install sep): no acceptance ratio")
+        if windowed:
+            per_win_s = best_win / sum(n)
+            solved_win = [sum(fr.solved for fr in f) for f in result_win.frames]
+            vs_sep = f", ratio to sep {per_win_s / best_sep:.2f}" if sep_ok else ""
+            print(f"windowed tracking (a full frame every {windowed}, PipelineOptions.windowed_full_frame_every): "
+                  f"{1e3 * per_win_s:.2f} ms per frame ({solved_win} solved), {per_win_s / per_frame_s:.2f}x the "
+                  f"default chain{vs_sep}")
         stages, total = profile(directory)
         print(f"\nprofile (cProfile, cumulative; total {1e3 * total / sum(n):.1f} ms per frame under the profiler):")
         for label in STAGES.values():

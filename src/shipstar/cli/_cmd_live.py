@@ -10,6 +10,7 @@ from shipstar.cli._common import (
     add_date_obs_is_argument,
     add_refraction_arguments,
     add_site_arguments,
+    add_windowed_argument,
     add_weather_arguments,
     check_output_file,
     emit_json,
@@ -96,6 +97,7 @@ def register(subparsers) -> argparse.ArgumentParser:
                    help="largest time offset of paired frames (s, default 0.06)")
     o.add_argument("--no-motion-compensation", action="store_true", help="do not carry paired frames (comparison)")
     o.add_argument("--no-streak-correction", action="store_true", help="no exposure-motion correction (comparison)")
+    add_windowed_argument(o)
     o.add_argument("--stale-s", type=float_in_range(0.1, 3600.0), default=2.0,
                    help="a sensor without frames this long is fused without (s, default 2)")
     r = p.add_argument_group("output")
@@ -235,7 +237,8 @@ def _settings(args, report):
     options = PipelineOptions(refraction_model=args.refraction, refraction=args.refraction_mode,
                               max_pair_offset_s=args.max_pair_offset_s,
                               compensate_motion=not args.no_motion_compensation,
-                              streak_correction=not args.no_streak_correction)
+                              streak_correction=not args.no_streak_correction,
+                              windowed_full_frame_every=args.windowed_full_frame_every)
     return LiveSettings(tuple(configs), tuple(dirs), options, names.index(args.reference) if args.reference else 0,
                         args.date_obs_is, track, weather, tails, nav, out, udp, args.format, args.method,
                         args.stop_after_s, stale_s=args.stale_s, max_waiting=args.max_waiting, http=http,

@@ -10,6 +10,7 @@ from shipstar.cli._common import (
     add_date_obs_is_argument,
     add_refraction_arguments,
     add_site_arguments,
+    add_windowed_argument,
     add_weather_arguments,
     check_output_dir,
     check_output_file,
@@ -132,6 +133,7 @@ def add_processing_arguments(p):
                    help="do not carry paired frames to the epoch time (for comparison)")
     o.add_argument("--no-streak-correction", action="store_true",
                    help="do not turn streak centroids (exposure averages) to mid-exposure directions (for comparison)")
+    add_windowed_argument(o)
     o.add_argument("--smooth-lag-s", type=_non_negative, default=SMOOTH_LAG_S, metavar="S",
                    help=f"fuse each epoch with the mounts' flexure estimate of the epochs up to S seconds later "
                         f"(a fixed-lag smoother, default {SMOOTH_LAG_S:g}; 0: causal, as live; docs/pipeline.md)")
@@ -429,7 +431,8 @@ def _job(args, track, weather):
     options = PipelineOptions(refraction_model=args.refraction, refraction=args.refraction_mode,
                               max_pair_offset_s=args.max_pair_offset_s,
                               compensate_motion=not args.no_motion_compensation,
-                              streak_correction=not args.no_streak_correction)
+                              streak_correction=not args.no_streak_correction,
+                              windowed_full_frame_every=args.windowed_full_frame_every)
     firsts = [_first_frame_time(directory, args.date_obs_is) for _, directory in args.sensor]
     start = min(firsts, key=lambda jd: (jd[0] - firsts[0][0]) + jd[1])
     ref = names.index(args.reference) if args.reference else 0

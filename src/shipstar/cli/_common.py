@@ -13,7 +13,7 @@ from pathlib import Path
 from shipstar.errors import ShipstarError
 
 __all__ = ["finite_float", "angle_deg", "in_range", "latitude_deg", "longitude_deg", "deflection_arcsec", "fraction", "positive_float",
-           "int_in_range", "float_in_range", "rng_seed", "add_site_arguments", "add_weather_arguments",
+           "int_in_range", "float_in_range", "rng_seed", "add_site_arguments", "add_weather_arguments", "add_windowed_argument", "WINDOWED_HELP",
            "add_refraction_arguments", "add_date_obs_is_argument", "REFRACTION_MODELS", "emit_json", "atomic_write_text", "check_output_file", "check_output_dir", "accuracy_warnings",
            "one_line"]
 
@@ -262,3 +262,14 @@ def accuracy_warnings(args) -> list:
 
     caught = getattr(args, "caught_warnings", None) or []
     return list(dict.fromkeys(one_line(w.message) for w in caught if issubclass(w.category, AccuracyWarning)))
+
+
+WINDOWED_HELP = ("windowed tracking: measure a tracked frame's stars only in windows around their "
+                 "predicted places, a full frame at least every N frames and whenever the windows find "
+                 "too few stars (default 0: every frame whole; docs/pipeline.md, *Windowed tracking*)")
+
+
+def add_windowed_argument(parser) -> None:
+    """``--windowed-full-frame-every N`` (PipelineOptions.windowed_full_frame_every)."""
+    parser.add_argument("--windowed-full-frame-every", type=int_in_range(0), default=0, metavar="N",
+                        help=WINDOWED_HELP)

@@ -18,7 +18,7 @@ from shipstar.extract._point import component_stats, detect_objects, measure_poi
 from shipstar.extract._result import Extraction
 from shipstar.extract._smear import STREAK_MIN_PX, frame_smear
 
-__all__ = ["extract_stars", "STREAK_MIN_PX"]
+__all__ = ["extract_stars", "frame_extraction", "STREAK_MIN_PX"]
 
 REFINE_METHODS = ("gaussian", "none")
 #: A frame with at least this fraction of saturated pixels is refused.
@@ -169,12 +169,25 @@ def extract_stars(image, *, threshold_sigma=5.0, max_stars=None, refine="gaussia
         or has more than 1 % of its pixels non-finite or beyond +-3e38 ADU (the work arrays
         are float32); fewer such pixels are replaced by the median of the others.
     """
+    return frame_extraction(image, threshold_sigma=threshold_sigma, max_stars=max_stars, refine=refine,
+                            psf_sigma_px=psf_sigma_px, gain_e_per_adu=gain_e_per_adu,
+                            saturation_adu=saturation_adu, smear_px=smear_px)[0]
+
+
+def frame_extraction(image, *, threshold_sigma=5.0, max_stars=None, refine="gaussian", psf_sigma_px=None,
+                     gain_e_per_adu=None, saturation_adu=None, smear_px=None):
+    """:func:`extract_stars`, and what it learnt of the frame: ``(Extraction, mesh,
+    saturation_adu)`` -- the background and noise :class:`~shipstar.extract._background.Mesh`
+    and the saturation level (given, or the top of the ADC range the data fit in; inf for
+    float data), which the windowed extraction of the next frames
+    (:mod:`shipstar.extract._windowed`) reuses."""
     _check_args(threshold_sigma, max_stars, refine, psf_sigma_px, gain_e_per_adu)
     hint = _check_smear(smear_px)
     arr, quantum = _prepare(image)
     saturation, n_sat = _saturation(arr, saturation_adu)
     if n_sat >= OVEREXPOSED_FRACTION * arr.size:
         raise ShipstarError(f"frame is overexposed: {100.0 * n_sat / arr.size:.0f}% of its pixels are saturated")
+    level = saturation
     if not n_sat:                           # no pixel reaches it: nothing to test against it below
         saturation = math.inf
     mesh = estimate_mesh(arr, quantum_adu=quantum)
@@ -186,7 +199,7 @@ def extract_stars(image, *, threshold_sigma=5.0, max_stars=None, refine="gaussia
 
         res, sigma = extract_smeared(arr, mesh, None, hint, sigma_given, inv_gain, saturation,
                                      float(threshold_sigma), refine, refine_smear=True)
-        return _result(res, mesh, sigma, arr.shape, max_stars, hint)
+        return _result(res, mesh, sigma, arr.shape, max_stars, hint), mesh, level
     peaks, labels_of_peaks, idx, labels = detect_objects(arr, mesh, float(threshold_sigma))
     stats = component_stats(arr, mesh, idx, labels, labels_of_peaks, saturation)
     sat_mask = at_or_above(arr, saturation) if (hint is None and n_sat) else None
@@ -196,9 +209,9 @@ def extract_stars(image, *, threshold_sigma=5.0, max_stars=None, refine="gaussia
 
         res, sigma = extract_smeared(arr, mesh, stats, smear, sigma_s, gain_s, saturation, float(threshold_sigma),
                                      refine, refine_smear=hint is not None)
-        return _result(res, mesh, sigma, arr.shape, max_stars, smear)
+        return _result(res, mesh, sigma, arr.shape, max_stars, smear), mesh, level
     res, sigma = measure_points(arr, mesh, peaks, stats, refine, psf_sigma_px, inv_gain)
-    return _result(res, mesh, sigma, arr.shape, max_stars, np.zeros(2))
+    return _result(res, mesh, sigma, arr.shape, max_stars, np.zeros(2)), mesh, level
 
 
 def _result(res, mesh, sigma, shape, max_stars, smear) -> Extraction:

@@ -50,7 +50,7 @@ _FIT_SNR_FRACTION = 0.8
 _FOOTPRINT_FRACTION = 0.02
 
 
-def sharp_pixels(image, mesh, too_sharp, segment_sigma=SEGMENT_SIGMA):
+def sharp_pixels(image, mesh, too_sharp, segment_sigma=SEGMENT_SIGMA, idx=None):
     """Flat indices of hot pixels and cosmic rays: the local maxima >= 5 sigma that ``too_sharp``
     rejects, with the rest of their small connected component, or their 3 x 3 neighbours
     when they sit on something larger (a cosmic ray on a star).
@@ -60,11 +60,14 @@ def sharp_pixels(image, mesh, too_sharp, segment_sigma=SEGMENT_SIGMA):
     peak's component is judged in the 7 x 7 box around it: pixels above ``segment_sigma``
     on the box's border mean a large component; else the <= ``_SHARP_COMPONENT_PX`` such
     pixels of the inner 5 x 5 are the component (a cosmic ray of 1-3 pixels in a line).
-    ``too_sharp(peaks) -> (M,) bool``.
+    ``too_sharp(peaks) -> (M,) bool``. ``idx``: the pixels above that level, sorted flat
+    indices, when the caller has them (windows around predicted stars); else one pass
+    over the frame finds them.
     """
     flat = image.reshape(-1)
     height, width = image.shape
-    idx = candidate_pixels(image, mesh, 3.5 * mesh.box_noise_factor)
+    if idx is None:
+        idx = candidate_pixels(image, mesh, 3.5 * mesh.box_noise_factor)
     peaks = local_maxima(flat, idx, image.shape)
     row, col = np.divmod(peaks, width)
     bg, noise = mesh.at(col, row)
@@ -90,7 +93,7 @@ def sharp_pixels(image, mesh, too_sharp, segment_sigma=SEGMENT_SIGMA):
 
 
 def measure_streaks(image, mesh, smear, *, threshold_sigma, segment_sigma, sigma, inv_gain, bad, saturated, patch=None,
-                    fit=True, refine_smear=False):
+                    fit=True, refine_smear=False, det=None):
     """Detect and fit the smeared stars of a frame.
 
     Parameters
@@ -115,14 +118,19 @@ def measure_streaks(image, mesh, smear, *, threshold_sigma, segment_sigma, sigma
         ``smear`` is a prediction (the caller's hint): the detection uses it, then the
         common smear is measured by free-smear fits of the brightest streaks found
         (:func:`_refined_smear`) and the fits use that.
+    det : dict, optional
+        The detections, as :func:`shipstar.extract._matched.detect_streaks` returns them
+        (``npix`` may be None: then the fitted footprint's pixels), when the caller found
+        them (windows around predicted stars); else the line filter finds them in the frame.
 
     Returns
     -------
     dict of per-star arrays: xy (M, 2), flux, peak, npix, flags, snr, xy_cov (M, 2, 2). Peaks
     whose fit converged with a flux SNR below 0.8 ``threshold_sigma`` are dropped (noise).
     """
-    lf = LineFilter(smear, across_px=max(1, int(round(1.2 * sigma))))
-    det = detect_streaks(image, mesh, lf, threshold_sigma, segment_sigma, sigma, patch=patch)
+    if det is None:
+        lf = LineFilter(smear, across_px=max(1, int(round(1.2 * sigma))))
+        det = detect_streaks(image, mesh, lf, threshold_sigma, segment_sigma, sigma, patch=patch)
     if len(det["col"]) == 0:
         return dict(xy=np.zeros((0, 2)), flux=np.zeros(0), peak=np.zeros(0), npix=np.zeros(0, dtype=np.int64),
                     flags=np.zeros(0, dtype=np.int64), snr=np.zeros(0), xy_cov=np.zeros((0, 2, 2)))
@@ -160,7 +168,8 @@ def measure_streaks(image, mesh, smear, *, threshold_sigma, segment_sigma, sigma
     snr = flux / np.sqrt(cov[:, FLUX, FLUX])
     keep = ~ok | (snr >= _FIT_SNR_FRACTION * threshold_sigma) if fit else np.ones(len(snr), dtype=bool)
     xy, flux, peak, flags, snr, xy_cov = xy[keep], flux[keep], peak[keep], flags[keep], snr[keep], xy_cov[keep]
-    return dict(xy=xy, flux=flux, peak=peak, npix=det["npix"][keep], flags=flags, snr=snr, xy_cov=xy_cov)
+    npix = foot.sum(axis=(1, 2)) if det["npix"] is None else det["npix"]
+    return dict(xy=xy, flux=flux, peak=peak, npix=npix[keep], flags=flags, snr=snr, xy_cov=xy_cov)
 
 
 def _refined_smear(image, mesh, det, smear, sigma, inv_gain, bad, saturated):

@@ -61,6 +61,11 @@ class PipelineOptions:
     reject_outliers : bool
     max_residual_arcsec : float or None
         Absolute star residual threshold (default: 5 sigma of the frame's scatter).
+    windowed_full_frame_every : int
+        Windowed tracking (``extract._windowed``, docs/pipeline.md *Windowed tracking*):
+        a tracked frame's stars are measured only in windows around their predicted
+        places, with a full frame at least every this many frames and whenever the
+        windows fall short (0, the default: every frame whole).
     """
 
     refraction_model: str = "erfa"
@@ -75,6 +80,7 @@ class PipelineOptions:
     streak_correction: bool = True
     reject_outliers: bool = True
     max_residual_arcsec: float | None = None
+    windowed_full_frame_every: int = 0
 
     def __post_init__(self):
         from shipstar.attitude._horizontal import REFRACTION_MODES
@@ -92,6 +98,9 @@ class PipelineOptions:
         _positive("prior_error_deg", self.prior_error_deg)
         _positive("max_pair_offset_s", self.max_pair_offset_s, allow_zero=True)
         _positive("max_residual_arcsec", self.max_residual_arcsec, allow_none=True)
+        n = self.windowed_full_frame_every
+        if isinstance(n, bool) or not isinstance(n, int) or n < 0:
+            raise ShipstarError(f"windowed_full_frame_every must be a whole number of frames >= 0, got {n!r}")
 
 
 @dataclass(frozen=True, eq=False)

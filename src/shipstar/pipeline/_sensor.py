@@ -55,6 +55,14 @@ _MAX_PRIOR_GAP_S = 2.0
 SMEAR_HINT_MIN_PX = 3.0
 #: ... from a motion fit at most this old (s).
 _MAX_SMEAR_HINT_GAP_S = 0.5
+#: Windowed tracking (``PipelineOptions.windowed_full_frame_every``): the windows must
+#: find at least this fraction of the stars the last full frame identified, else the
+#: frame is extracted whole (cloud coming, a prediction gone wrong) ...
+WINDOW_MIN_FOUND_FRACTION = 0.7
+#: ... and at least this many.
+WINDOW_MIN_STARS = 6
+#: ... looking for each star this far (px) from its predicted place.
+WINDOW_SEARCH_PX = 3.0
 #: Star databases by camera (``build_database`` costs ~7 ms even when memoised: it
 #: derives the magnitude limit and digests the catalog first).
 _DATABASES: dict = {}
@@ -387,6 +395,15 @@ class SensorProcessor:
         self.conditions = ConditionMonitor(config.camera, options)
         self._floor_used_px = options.centroid_floor_px
         self._shape = None
+        # windowed tracking: the last full frame's mesh and saturation level, the windowed
+        # frames since, the stars it identified; the catalog's stars near the field
+        self._full_frame = None
+        self._since_full = 0
+        self._last_full = True
+        self._full_n_id = 0
+        self._window_stars = None
+        #: Frames extracted whole and in windows.
+        self.extraction_counts = {"full": 0, "windowed": 0}
 
     @property
     def database(self):
@@ -403,7 +420,7 @@ class SensorProcessor:
         star is a streak); the Moon and the
         Sun masked, trails and persistent pixels dropped (``self.conditions``)."""
         from shipstar._fitsio import read_fits_image
-        from shipstar.extract import extract_stars
+        from shipstar.extract._core import frame_extraction
 
         if frame.xy_px is not None:
             return np.asarray(frame.xy_px, float), None, None
@@ -419,8 +436,17 @@ class SensorProcessor:
                 prior = None
         extrapolated = len(self._history) >= 2 and t_s - self._history[-1][0] <= _MAX_PRIOR_GAP_S
         image = self.conditions.mask(image, frame, site, prior, extrapolated=extrapolated)
-        ex = extract_stars(image, threshold_sigma=self.options.threshold_sigma, psf_sigma_px=cam.psf_sigma_px,
-                           gain_e_per_adu=cam.gain_e_per_adu, smear_px=self._smear_hint_px(frame, t_s))
+        ex = self._windowed(image, frame, t_s, prior, extrapolated)
+        self._last_full = ex is None
+        if ex is None:
+            ex, mesh, level = frame_extraction(image, threshold_sigma=self.options.threshold_sigma,
+                                               psf_sigma_px=cam.psf_sigma_px, gain_e_per_adu=cam.gain_e_per_adu,
+                                               smear_px=self._smear_hint_px(frame, t_s))
+            self._full_frame, self._since_full = (mesh, level), 0
+            self.extraction_counts["full"] += 1
+        else:
+            self._since_full += 1
+            self.extraction_counts["windowed"] += 1
         keep = self.conditions.keep(image, ex, prior)
         order = rank_by_flux(ex.flux_adu)
         order = order[keep[order]]
@@ -454,6 +480,14 @@ class SensorProcessor:
         """
         from shipstar.extract._core import MAX_SMEAR_PX
 
+        smear = self._predicted_smear_px(frame, t_s)
+        if smear is None or not SMEAR_HINT_MIN_PX <= math.hypot(*smear) <= MAX_SMEAR_PX:
+            return None
+        return smear
+
+    def _predicted_smear_px(self, frame, t_s: float):
+        """The smear (dx, dy) px at the image centre that the motion fitted to this sensor's
+        solved frames predicts for this frame, of any length (None: no recent fit)."""
         fit = self._motion_fit
         exposure_s = frame.exposure_s
         if fit is None or not (math.isfinite(t_s) and math.isfinite(exposure_s) and exposure_s > 0.0) \
@@ -463,9 +497,49 @@ class SensorProcessor:
         d = np.cross(fit.omega_at(t_s), u0) * (0.5 * exposure_s)     # u(t) = u0 - (omega x u0) t
         ends = self.config.camera.project(np.array([u0 + d, u0 - d]))
         smear = ends[1] - ends[0]
-        if not (np.all(np.isfinite(smear)) and SMEAR_HINT_MIN_PX <= math.hypot(*smear) <= MAX_SMEAR_PX):
+        return smear if np.all(np.isfinite(smear)) else None
+
+    def _windowed(self, image, frame, t_s: float, prior, extrapolated: bool):
+        """The frame's stars measured in windows around the catalog stars the prior
+        predicts (:func:`shipstar.extract._windowed.extract_windows`), or None: the frame is
+        then extracted whole (windowed tracking off, a full frame due, no recent full
+        frame, a prior not extrapolated from two solved frames, the Moon or the Sun in the
+        field, no motion fit, the camera's PSF or gain unknown, the windows refused or
+        finding too few stars)."""
+        from shipstar.extract._core import MAX_SMEAR_PX
+        from shipstar.extract._windowed import extract_windows
+
+        every = self.options.windowed_full_frame_every
+        cam = self.config.camera
+        if every <= 1 or self._full_frame is None or self._since_full + 1 >= every or prior is None \
+                or not extrapolated or self.conditions.discs or cam.psf_sigma_px is None \
+                or cam.gain_e_per_adu is None:
             return None
-        return smear
+        smear = self._predicted_smear_px(frame, t_s)
+        if smear is None or math.hypot(*smear) > MAX_SMEAR_PX:
+            return None
+        mesh, level = self._full_frame
+        result = extract_windows(image, self._predicted_xy_px(prior), mesh=mesh, saturation_adu=level,
+                                 smear_px=smear, psf_sigma_px=cam.psf_sigma_px, gain_e_per_adu=cam.gain_e_per_adu,
+                                 threshold_sigma=self.options.threshold_sigma, search_px=WINDOW_SEARCH_PX)
+        if not result.ok or len(result.extraction) < max(WINDOW_MIN_STARS,
+                                                         WINDOW_MIN_FOUND_FRACTION * self._full_n_id):
+            return None
+        return result.extraction
+
+    def _predicted_xy_px(self, C_icrs_from_sensor) -> np.ndarray:
+        """(M, 2) pixel places of the star database's stars near the field, seen with the
+        attitude ``C_icrs_from_sensor`` (off-image ones included; the windows drop them)."""
+        cam = self.config.camera
+        if self._window_stars is None:
+            u = np.asarray(self.database.u_icrs, dtype=float)
+            corners = np.array([[0.0, 0.0], [cam.width_px - 1.0, 0.0], [0.0, cam.height_px - 1.0],
+                                [cam.width_px - 1.0, cam.height_px - 1.0]])
+            cos_reach = float(np.min(cam.unproject(corners) @ self._centre_u))
+            self._window_stars = (u, math.cos(min(math.pi / 2, math.acos(min(1.0, cos_reach)) + 0.02)))
+        u, cos_limit = self._window_stars
+        w = u @ np.asarray(C_icrs_from_sensor, dtype=float)          # sensor axes: C^T u, row-wise
+        return cam.project(w[w @ self._centre_u > cos_limit])
 
     def _prior(self, t_s: float):
         """Predicted C_icrs_from_sensor at ``t_s`` from the last two solved frames (or None)."""
@@ -494,6 +568,8 @@ class SensorProcessor:
         if not idn.solved:
             raise ShipstarError(f"not identified ({idn.mode}): {idn.reason}")
         self._history = (self._history + [(t_s, np.asarray(idn.C_icrs_from_sensor))])[-2:]
+        if self._last_full:
+            self._full_n_id = int(np.count_nonzero(np.asarray(idn.hip) >= 0))
         # a calibrated camera: the identification's unit vectors are camera.unproject(xy)
         u = idn.u_sensor if idn.focal_scale == 1.0 and idn.radial_k1 == 0.0 else None
         return np.asarray(idn.hip, np.int64), idn.mode, np.asarray(idn.C_icrs_from_sensor), u
@@ -570,6 +646,7 @@ class SensorProcessor:
             h, site, weather, n_id, inputs = self._horizontal(frame, xy, sigma_px, hip, u_sensor, site, weather,
                                                               cov_px2, shape)
         except ShipstarError as exc:
+            self._since_full = self.options.windowed_full_frame_every     # windowed tracking: the next one whole
             reason = self._lost_reason(str(exc), frame, n_det, t_s) if measured else str(exc)
             return FrameResult(self.config.name, index, label, frame.utc_jd1, frame.utc_jd2, False, reason, mode,
                                n_det, n_id, C_icrs, None, ShipAttitude.failed(reason, "single"), None, None,
@@ -583,6 +660,7 @@ class SensorProcessor:
             self.conditions.add_solved(fr, self._floor_used_px, h, t_s, self._shape)
             fr = replace(fr, noise_floor_arcsec=self.noise_floor_arcsec)
         else:
+            self._since_full = self.options.windowed_full_frame_every
             reason = self._lost_reason(fr.reason, frame, n_det, t_s)
             if reason != fr.reason:
                 fr = replace(fr, reason=reason, ship=ShipAttitude.failed(reason, "single"))

@@ -1,0 +1,233 @@
+"""Windowed extraction: a tracked frame's stars measured only around their predicted places.
+
+Flight star trackers track in windows: once the attitude is known, each catalog star's
+place in the next frame is predicted to a pixel or two, and only the pixels around it
+are read.  Here the frame-wide passes of :func:`~shipstar.extract.extract_stars` (the
+background mesh, the saturation count, the hot-pixel candidates, the line filter or the
+segmentation) are replaced by the same steps inside one window per predicted star,
+with the background mesh and the saturation level of a recent full frame
+(:func:`~shipstar.extract._core.frame_extraction`):
+
+1. a window around each prediction: the streak's extent, the fit's margin and the
+   prediction's error (``search_px``);
+2. the background's drift since the full frame, from the windows' border rings (the
+   median of their pixels less the mesh): beyond
+   :data:`MAX_BACKGROUND_SHIFT_SIGMA` of the noise, or enough to change the noise's
+   Poisson part by :data:`MAX_NOISE_VARIANCE_CHANGE`, the frame is refused (the caller
+   extracts it whole: cloud, the Moon, twilight);
+3. hot pixels and cosmic rays among the windows' pixels (the frame-wide test of
+   :func:`~shipstar.extract._smeared.sharp_pixels`), and saturated pixels, left out;
+4. the star's peak: the maximum of the line filter (the streak's pixels summed along the
+   smear, 3 across; a 3 x 3 box for a point) within ``search_px`` of the prediction, and
+   the detection test on it (``threshold_sigma`` times its white-noise sigma); peaks of
+   two predictions within one streak's footprint are one star, flagged as a blend;
+5. the fits, exactly as in a full frame (:func:`~shipstar.extract._smeared.measure_streaks`):
+   the common smear measured again from the brightest streaks (from :data:`REFINE_MIN_PX`
+   long, where a full frame is given the smear too; shorter, the prediction), the smear field, the
+   pixel-integrated Gaussian moved along each star's smear (a point when the smear is
+   zero); fitted flux SNR below 0.8 ``threshold_sigma`` dropped.
+
+Only predicted stars are found: a star missing from the prediction (not in the catalog,
+outside the windows) is not, and neither are trails crossing the frame elsewhere.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from shipstar.extract._background import median
+from shipstar.extract._core import _prepare, _result
+from shipstar.extract._kernels import suppress
+from shipstar.extract._matched import LineFilter
+from shipstar.extract._point import SEGMENT_SIGMA, too_sharp
+from shipstar.extract._result import Extraction
+from shipstar.extract._smear import STREAK_MIN_PX
+from shipstar.extract._smeared import _FIELD_FRACTION, _MARGIN_PX, measure_streaks, sharp_pixels
+from shipstar.extract._streak import gather_streak_windows, streak_half_sizes
+
+__all__ = ["WindowResult", "extract_windows", "MAX_BACKGROUND_SHIFT_SIGMA", "MAX_NOISE_VARIANCE_CHANGE"]
+
+#: The windows' background may differ from the full frame's mesh by this many noise sigmas ...
+MAX_BACKGROUND_SHIFT_SIGMA = 0.5
+#: ... and change the noise's variance (its Poisson part, through the gain) by this fraction.
+MAX_NOISE_VARIANCE_CHANGE = 0.1
+#: The common smear is measured again from the brightest streaks (as in a full frame) from
+#: this length, px; a shorter one is modelled as predicted (its error moves no midpoint).
+REFINE_MIN_PX = 3.0
+#: Width of each window's border ring that measures the background, px.
+_RING_PX = 2
+
+
+@dataclass(frozen=True)
+class WindowResult:
+    """A windowed extraction: ``extraction`` (None when refused) and why it was refused.
+
+    Attributes
+    ----------
+    extraction : Extraction or None
+        The stars found, brightest first (``background_adu``: the mesh's plus the
+        measured drift; ``noise_adu``: the mesh's).
+    reason : str
+        Why the windows were refused ("" when not): the caller then extracts the frame whole.
+    n_predicted : int
+        Predictions inside the frame (windows).
+    background_shift_adu : float
+        Median background of the windows' border rings less the mesh's (NaN if refused before).
+    """
+
+    extraction: Extraction | None
+    reason: str
+    n_predicted: int = 0
+    background_shift_adu: float = math.nan
+
+    @property
+    def ok(self) -> bool:
+        return self.extraction is not None
+
+
+def _ring_shift(win):
+    """Median of the windows' border-ring pixels less the mesh's background, ADU (NaN: none)."""
+    r = _RING_PX
+    n = len(win.values)
+    parts = []
+    for sl in ((slice(None), slice(None, r), slice(None)), (slice(None), slice(-r, None), slice(None)),
+               (slice(None), slice(r, -r), slice(None, r)), (slice(None), slice(r, -r), slice(-r, None))):
+        parts.append(((win.values[sl] - win.bg[:, None, None]).reshape(n, -1), win.valid[sl].reshape(n, -1)))
+    ring = np.concatenate([v for v, _ in parts], axis=1)[np.concatenate([ok for _, ok in parts], axis=1)]
+    return median(ring) if ring.size else math.nan
+
+
+def _peaks(win, smear, sigma, search: int, box_noise_factor: float):
+    """Per window: the line filter's maximum within ``search`` px of the centre: ``(dx, dy)``
+    (N,) int offsets from the centre and its SNR (N,) against white noise."""
+    length = float(math.hypot(*smear))
+    excess = np.where(win.valid, win.values - win.bg[:, None, None], 0.0)
+    if length >= STREAK_MIN_PX:
+        lf = LineFilter(smear, across_px=max(1, int(round(1.2 * sigma))))
+        minor = np.array([0, 1]) if lf.major == 0 else np.array([1, 0])
+        taps = [(int(ox) + a * minor[0], int(oy) + a * minor[1]) for ox, oy in lf.offsets
+                for a in range(-lf.across_px, lf.across_px + 1)]
+    else:
+        taps = [(ox, oy) for oy in (-1, 0, 1) for ox in (-1, 0, 1)]
+    n, wy, wx = excess.shape
+    cy, cx = (wy - 1) // 2, (wx - 1) // 2
+    side = 2 * search + 1
+    s = np.zeros((n, side, side))
+    for ox, oy in taps:
+        y0, x0 = cy + oy - search, cx + ox - search
+        if y0 < 0 or x0 < 0 or y0 + side > wy or x0 + side > wx:
+            raise ValueError("window too small for the line filter's reach")   # (sizes are chosen so it is not)
+        s += excess[:, y0:y0 + side, x0:x0 + side]
+    best = np.argmax(s.reshape(n, -1), axis=1)
+    dy, dx = np.divmod(best, side)
+    noise = win.noise * box_noise_factor * math.sqrt(len(taps))
+    snr = s.reshape(n, -1)[np.arange(n), best] / noise
+    return dx - search, dy - search, snr
+
+
+def extract_windows(image, xy_pred_px, *, mesh, saturation_adu: float, smear_px, psf_sigma_px: float,
+                    gain_e_per_adu: float, threshold_sigma: float = 5.0, search_px: float = 3.0) -> WindowResult:
+    """The stars of a frame measured in windows around their predicted places.
+
+    Parameters
+    ----------
+    image : (H, W) array
+        The frame, ADU, the same shape as the full frame the mesh is of.
+    xy_pred_px : (M, 2) array
+        Predicted centroids (x right, y down), e.g. the catalog stars projected with the
+        predicted attitude; those off the frame are ignored.
+    mesh : Mesh
+        The background mesh of a recent full frame (:func:`frame_extraction`).
+    saturation_adu : float
+        Its saturation level (inf: none).
+    smear_px : (2,) array
+        The stars' motion during the exposure (end minus start, px), e.g. from the sensor's
+        rate; (0, 0) for points.  At least ``STREAK_MIN_PX`` long it is measured again from
+        the brightest streaks, as in a full frame.
+    psf_sigma_px, gain_e_per_adu : float
+        The camera's PSF sigma and gain (both needed: nothing in the windows fits them).
+    threshold_sigma : float
+        Detection threshold, as for :func:`extract_stars`.
+    search_px : float
+        Largest error of the predictions, px (the peak is looked for this far).
+
+    Returns
+    -------
+    WindowResult
+    """
+    arr, _ = _prepare(image)
+    if arr.shape != tuple(mesh.shape_hw):
+        return WindowResult(None, f"frame is {arr.shape[1]}x{arr.shape[0]}, the full frame's mesh "
+                                  f"{mesh.shape_hw[1]}x{mesh.shape_hw[0]}")
+    sigma, inv_gain = float(psf_sigma_px), 1.0 / float(gain_e_per_adu)
+    smear = np.asarray(smear_px, dtype=float).reshape(2)
+    height, width = arr.shape
+    xy = np.asarray(xy_pred_px, dtype=float).reshape(-1, 2)
+    on = np.all(np.isfinite(xy), axis=1) & (xy[:, 0] >= -0.5) & (xy[:, 0] <= width - 0.5) \
+        & (xy[:, 1] >= -0.5) & (xy[:, 1] <= height - 0.5)
+    xy = xy[on]
+    if not len(xy):
+        return WindowResult(None, "no predicted star in the frame")
+    search = int(math.ceil(search_px))
+    length = float(math.hypot(*smear))
+    col, row = np.rint(xy).astype(np.int64).T
+    hx, hy = streak_half_sizes(smear, sigma, _MARGIN_PX + _FIELD_FRACTION * length + search + 1.0)
+    bg, noise = mesh.at(col, row)
+    win = gather_streak_windows(arr, col, row, hx, hy, bg, noise)
+    n_pred = len(col)
+    shift = _ring_shift(win)
+    noise_adu = mesh.noise_adu
+    if not math.isfinite(shift):
+        return WindowResult(None, "no background pixel in the windows", n_pred)
+    if abs(shift) > MAX_BACKGROUND_SHIFT_SIGMA * noise_adu or \
+            abs(shift) * inv_gain > MAX_NOISE_VARIANCE_CHANGE * noise_adu ** 2:
+        return WindowResult(None, f"background moved by {shift:+.2f} ADU since the full frame "
+                                  f"(noise {noise_adu:.2f} ADU)", n_pred, shift)
+    # the windows' pixels: flat indices, saturated ones and hot-pixel candidates
+    rows = row[:, None] + np.arange(-hy, hy + 1)
+    cols = col[:, None] + np.arange(-hx, hx + 1)
+    flat_idx = np.clip(rows, 0, height - 1)[:, :, None] * width + np.clip(cols, 0, width - 1)[:, None, :]
+    saturated = np.zeros(arr.shape, dtype=bool)
+    if math.isfinite(saturation_adu):
+        saturated.reshape(-1)[flat_idx[win.valid & (win.values >= saturation_adu)]] = True
+    level = (bg + 3.5 * mesh.box_noise_factor * noise)[:, None, None]
+    cand = np.unique(flat_idx[win.valid & (win.values > level)])
+    flat = arr.reshape(-1)
+
+    def test(peaks):
+        return too_sharp(arr, mesh, peaks, sigma, inv_gain, flat[peaks] >= saturation_adu)
+
+    segment_sigma = min(SEGMENT_SIGMA, float(threshold_sigma))
+    masked = sharp_pixels(arr, mesh, test, segment_sigma, idx=cand)
+    bad = saturated.copy()
+    bad.reshape(-1)[masked] = True
+    win = replace(win, valid=win.valid & ~bad.reshape(-1)[flat_idx])
+    # the peak of each window, the detection test, one star per streak footprint
+    dx, dy, snr = _peaks(win, smear, sigma, search, mesh.box_noise_factor)
+    found = np.flatnonzero(snr >= threshold_sigma)
+    col, row, snr = col[found] + dx[found], row[found] + dy[found], snr[found]
+    order = np.argsort(-snr, kind="stable")
+    u = smear / length if length >= STREAK_MIN_PX else np.array([1.0, 0.0])
+    peak_xy = np.stack([col, row], axis=1).astype(float)
+    dropped = suppress(peak_xy, order, u, length + 1.5, 2.5 + sigma) if len(order) > 1 \
+        else np.zeros(len(order), dtype=bool)
+    kept = np.flatnonzero(~dropped)
+    blend = np.zeros(len(kept), dtype=bool)
+    if dropped.any():                       # a dropped peak's star was merged into the nearest kept one
+        d = np.hypot(*(peak_xy[dropped][:, None, :] - peak_xy[kept][None, :, :]).transpose(2, 0, 1))
+        blend[np.unique(np.argmin(d, axis=1))] = True
+    det = dict(col=col[kept], row=row[kept], snr=snr[kept], label=np.arange(len(kept)), npix=None, too_big=blend)
+    if not len(kept):
+        empty = dict(xy=np.zeros((0, 2)), flux=np.zeros(0), peak=np.zeros(0), npix=np.zeros(0, dtype=np.int64),
+                     flags=np.zeros(0, dtype=np.int64), snr=np.zeros(0), xy_cov=np.zeros((0, 2, 2)))
+        ex = _result(empty, mesh, sigma, arr.shape, None, smear)
+    else:
+        res = measure_streaks(arr, mesh, smear, threshold_sigma=float(threshold_sigma), segment_sigma=segment_sigma,
+                              sigma=sigma, inv_gain=inv_gain, bad=bad, saturated=saturated, fit=True,
+                              refine_smear=length >= REFINE_MIN_PX, det=det)
+        ex = _result(res, mesh, sigma, arr.shape, None, smear)
+    ex = replace(ex, background_adu=mesh.background_adu + shift)
+    return WindowResult(ex, "", n_pred, shift)
