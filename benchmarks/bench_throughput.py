@@ -58,7 +58,8 @@ REAL_SYSTEM_FPS = 10.0
 STAGES = {  # profile entry -> label
     "read_fits_image": "read FITS (data)",
     "scan_frames": "scan FITS headers (frame times)",
-    "extract_stars": "extract stars",
+    "frame_extraction": "extract stars (whole frames)",
+    "extract_windows": "extract stars (windows)",
     "_identify": "identify (tracking)",
     "frame_context": "FrameContext (apco13)",
     "hor": "apparent places",

@@ -165,3 +165,23 @@ def test_windowed_tracking_in_a_sea_session_is_as_accurate_as_full_frames(monkey
         return np.sqrt(np.nanmean(err ** 2, axis=0))
 
     assert np.all(rms(windowed) <= 1.1 * rms(whole) + 0.02), (rms(windowed), rms(whole))
+
+
+@pytest.mark.parametrize("offset", [(5.0, -4.0), (-11.0, 9.0)])
+def test_the_predictions_common_error_is_measured_and_removed(offset):
+    """Every prediction off by the same (5, -4) px -- the predicted attitude's error -- plus
+    +-0.7 px each, beyond the 2 px search: the brightest predictions' peaks measure the
+    common error and every star is found where the full frame finds it; (-11, 9) px is
+    beyond the windows, which are then put at the moved predictions."""
+    smear = (12.0, 4.0)
+    cam, xy, img = _scene(smear, 11)
+    full, mesh, level = frame_extraction(img, psf_sigma_px=cam.psf_sigma_px, gain_e_per_adu=cam.gain_e_per_adu,
+                                         smear_px=smear)
+    rng = np.random.default_rng(2)
+    pred = xy - np.array(offset) + rng.uniform(-0.7, 0.7, xy.shape)
+    res = extract_windows(img, pred, mesh=mesh, saturation_adu=level, smear_px=smear,
+                          psf_sigma_px=cam.psf_sigma_px, gain_e_per_adu=cam.gain_e_per_adu, search_px=2.0)
+    assert res.ok
+    j, near = _match(res.extraction.xy_px, xy)
+    jf, near_f = _match(full.xy_px, xy)
+    assert near.all() and set(jf[near_f]) <= set(j), (len(res.extraction), near_f.sum())

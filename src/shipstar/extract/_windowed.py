@@ -8,10 +8,13 @@ segmentation) are replaced by the same steps inside one window per predicted sta
 with the background mesh and the saturation level of a recent full frame
 (:func:`~shipstar.extract._core.frame_extraction`):
 
-1. a window around each prediction: the streak's extent, the fit's margin and the
-   prediction's error (``search_px``);
+1. the predictions' common error (the predicted attitude's: the sensor's motion
+   extrapolated over a frame period is off by pixels when the ship's rate changes) from
+   the peaks of the brightest few, searched wider, and a window around each prediction
+   so moved: the streak's extent, the fit's margin and the prediction's own error
+   (``search_px``);
 2. the background's drift since the full frame, from the windows' border rings (the
-   median of their pixels less the mesh): beyond
+   clipped mean of their pixels less the mesh): beyond
    :data:`MAX_BACKGROUND_SHIFT_SIGMA` of the noise, or enough to change the noise's
    Poisson part by :data:`MAX_NOISE_VARIANCE_CHANGE`, the frame is refused (the caller
    extracts it whole: cloud, the Moon, twilight);
@@ -19,8 +22,12 @@ with the background mesh and the saturation level of a recent full frame
    :func:`~shipstar.extract._smeared.sharp_pixels`), and saturated pixels, left out;
 4. the star's peak: the maximum of the line filter (the streak's pixels summed along the
    smear, 3 across; a 3 x 3 box for a point) within ``search_px`` of the prediction, and
-   the detection test on it (``threshold_sigma`` times its white-noise sigma); peaks of
-   two predictions within one streak's footprint are one star, flagged as a blend;
+   the detection test on it (:data:`PEAK_SNR_FRACTION` of ``threshold_sigma`` times its
+   white-noise sigma, the background each window's ring's); peaks of
+   two predictions within one streak's footprint are one star, flagged as a blend, and a
+   star whose window holds many bright pixels outside its footprint (a trail, another
+   object) is flagged too (``elongated``, as a full frame flags them: the caller's trail
+   test then looks at its whole region);
 5. the fits, exactly as in a full frame (:func:`~shipstar.extract._smeared.measure_streaks`):
    the common smear measured again from the brightest streaks (from :data:`REFINE_MIN_PX`
    long, where a full frame is given the smear too; shorter, the prediction), the smear field, the
@@ -57,6 +64,19 @@ MAX_NOISE_VARIANCE_CHANGE = 0.1
 #: The common smear is measured again from the brightest streaks (as in a full frame) from
 #: this length, px; a shorter one is modelled as predicted (its error moves no midpoint).
 REFINE_MIN_PX = 3.0
+#: Bright pixels (3 sigma) outside a star's footprint that mark its window as crossed by
+#: something else (white noise puts ~0.1 % of the pixels there).
+_CROWDED_PX = 8
+#: A window's line-filter peak is tested at this fraction of ``threshold_sigma``: a frame's
+#: threshold keeps false peaks rare among its ~10^6 places, a window's search among its
+#: ~25-50 (at 3.5 sigma ~1 % of the windows without a star get a noise peak, which the
+#: fit's SNR test then drops); the fits keep, as in a full frame, SNR >= 0.8 threshold.
+PEAK_SNR_FRACTION = 0.7
+#: The predictions' common error (the predicted attitude's) is measured on this many of the
+#: first (brightest) predictions ...
+ACQUIRE_STARS = 8
+#: ... searched this far (px).
+ACQUIRE_PX = 8
 #: Width of each window's border ring that measures the background, px.
 _RING_PX = 2
 
@@ -89,47 +109,111 @@ class WindowResult:
 
 
 def _ring_shift(win):
-    """Median of the windows' border-ring pixels less the mesh's background, ADU (NaN: none)."""
+    """The windows' border-ring pixels less the mesh's background, ADU: their level over all
+    the windows (NaN: none), and each window's own (N,) (0 where it has none).
+
+    Levels are means of the pixels within 3 noise sigma of the pooled median (a star or a
+    hot pixel in a ring left out): with integer data and ~1 ADU of noise a median moves in
+    steps of 1/2 ADU, which the line filter's sum of ~15-100 pixels would turn into
+    several of its sigmas."""
     r = _RING_PX
     n = len(win.values)
     parts = []
     for sl in ((slice(None), slice(None, r), slice(None)), (slice(None), slice(-r, None), slice(None)),
                (slice(None), slice(r, -r), slice(None, r)), (slice(None), slice(r, -r), slice(-r, None))):
         parts.append(((win.values[sl] - win.bg[:, None, None]).reshape(n, -1), win.valid[sl].reshape(n, -1)))
-    ring = np.concatenate([v for v, _ in parts], axis=1)[np.concatenate([ok for _, ok in parts], axis=1)]
-    return median(ring) if ring.size else math.nan
+    values = np.concatenate([v for v, _ in parts], axis=1)
+    ok = np.concatenate([k for _, k in parts], axis=1)
+    if not ok.any():
+        return math.nan, np.zeros(n)
+    centre = median(values[ok])
+    ok &= np.abs(values - centre) <= 3.0 * win.noise[:, None]
+    count = ok.sum(axis=1)
+    total = np.where(ok, values, 0.0).sum(axis=1)
+    own = np.where(count > 0, total / np.maximum(count, 1), 0.0)
+    return (float(total.sum() / count.sum()) if count.sum() else math.nan), own
 
 
-def _peaks(win, smear, sigma, search: int, box_noise_factor: float):
-    """Per window: the line filter's maximum within ``search`` px of the centre: ``(dx, dy)``
-    (N,) int offsets from the centre and its SNR (N,) against white noise."""
-    length = float(math.hypot(*smear))
-    excess = np.where(win.valid, win.values - win.bg[:, None, None], 0.0)
-    if length >= STREAK_MIN_PX:
+def _taps(smear, sigma):
+    """The line filter's pixel offsets [(ox, oy), ...] (a 3 x 3 box for points) and their
+    reach (rx, ry), px."""
+    if float(math.hypot(*smear)) >= STREAK_MIN_PX:
         lf = LineFilter(smear, across_px=max(1, int(round(1.2 * sigma))))
-        minor = np.array([0, 1]) if lf.major == 0 else np.array([1, 0])
+        minor = (0, 1) if lf.major == 0 else (1, 0)
         taps = [(int(ox) + a * minor[0], int(oy) + a * minor[1]) for ox, oy in lf.offsets
                 for a in range(-lf.across_px, lf.across_px + 1)]
     else:
         taps = [(ox, oy) for oy in (-1, 0, 1) for ox in (-1, 0, 1)]
+    return taps, (max(abs(t[0]) for t in taps), max(abs(t[1]) for t in taps))
+
+
+def _peaks(win, taps, search: int, box_noise_factor: float, local_adu, centre=(0, 0)):
+    """Per window: the line filter's maximum within ``search`` px of the window's centre
+    moved by ``centre`` (dx, dy): ``(dx, dy)`` (N,) int offsets from the window's centre and
+    its SNR (N,) against white noise; the background is the mesh's plus each window's ring
+    level ``local_adu`` (N,)."""
+    excess = np.where(win.valid, win.values - (win.bg + local_adu)[:, None, None], 0.0)
     n, wy, wx = excess.shape
-    cy, cx = (wy - 1) // 2, (wx - 1) // 2
+    cy, cx = (wy - 1) // 2 + int(centre[1]), (wx - 1) // 2 + int(centre[0])
     side = 2 * search + 1
     s = np.zeros((n, side, side))
     for ox, oy in taps:
         y0, x0 = cy + oy - search, cx + ox - search
         if y0 < 0 or x0 < 0 or y0 + side > wy or x0 + side > wx:
-            raise ValueError("window too small for the line filter's reach")   # (sizes are chosen so it is not)
+            raise ValueError("window too small for the line filter's reach")   # (the callers size them)
         s += excess[:, y0:y0 + side, x0:x0 + side]
     best = np.argmax(s.reshape(n, -1), axis=1)
     dy, dx = np.divmod(best, side)
     noise = win.noise * box_noise_factor * math.sqrt(len(taps))
     snr = s.reshape(n, -1)[np.arange(n), best] / noise
-    return dx - search, dy - search, snr
+    return dx - search + int(centre[0]), dy - search + int(centre[1]), snr
+
+
+def _common_offset(win, taps, reach, box_noise_factor: float, local_adu, threshold_sigma: float):
+    """(dx, dy) int px: the predictions' common error (the predicted attitude's), from the
+    first (brightest) :data:`ACQUIRE_STARS` windows searched as far as they reach (at most
+    :data:`ACQUIRE_PX`): the median of their peaks' offsets when at least 3 are found, else
+    (0, 0)."""
+    wy, wx = win.shape
+    far = min(ACQUIRE_PX, (wx - 1) // 2 - reach[0], (wy - 1) // 2 - reach[1])
+    first = win.take(slice(0, ACQUIRE_STARS))
+    dx, dy, snr = _peaks(first, taps, far, box_noise_factor, local_adu[:ACQUIRE_STARS])
+    found = snr >= threshold_sigma
+    if np.count_nonzero(found) < 3:
+        return 0, 0
+    return int(np.rint(np.median(dx[found]))), int(np.rint(np.median(dy[found])))
+
+
+def _crowded(win, dx, dy, smear, sigma: float, box_noise_factor: float) -> np.ndarray:
+    """(N,) bool: windows with more bright pixels (3 sigma) outside their star's footprint
+    (centred ``dx, dy`` (N,) px from the window's centre) than noise gives
+    (:data:`_CROWDED_PX`, or half the window's width): a trail or another object crosses it.
+    Such a star is flagged as a full frame flags a trail's or a blend's (``elongated``), and
+    the caller's trail test (``extract._artifacts.trail_mask``) looks at its whole region."""
+    n, wy, wx = win.values.shape
+    if n == 0:
+        return np.zeros(0, dtype=bool)
+    length = float(math.hypot(*smear))
+    u = smear / length if length > 1e-9 else np.array([1.0, 0.0])
+    m = int(max(np.max(np.abs(dx)), np.max(np.abs(dy))))
+    # the footprint about the centre of a table m px wider each way, cut at each star's offset
+    gy = np.arange(wy + 2 * m) - ((wy - 1) // 2 + m)
+    gx = np.arange(wx + 2 * m) - ((wx - 1) // 2 + m)
+    along = gx[None, :] * u[0] + gy[:, None] * u[1]
+    across = gx[None, :] * u[1] - gy[:, None] * u[0]
+    reach = 3.0 * sigma + 1.0
+    table = (np.abs(along) <= 0.5 * length + reach) & (np.abs(across) <= reach)
+    rows = (m - dy)[:, None] + np.arange(wy)
+    cols = (m - dx)[:, None] + np.arange(wx)
+    inside = table[rows[:, :, None], cols[:, None, :]]
+    level = (win.bg + 3.0 * box_noise_factor * win.noise)[:, None, None]
+    bright = win.valid & (win.values > level) & ~inside
+    return bright.sum(axis=(1, 2)) >= max(_CROWDED_PX, 0.5 * wx)
 
 
 def extract_windows(image, xy_pred_px, *, mesh, saturation_adu: float, smear_px, psf_sigma_px: float,
-                    gain_e_per_adu: float, threshold_sigma: float = 5.0, search_px: float = 3.0) -> WindowResult:
+                    gain_e_per_adu: float, threshold_sigma: float = 5.0, search_px: float = 3.0,
+                    _moved: bool = False) -> WindowResult:
     """The stars of a frame measured in windows around their predicted places.
 
     Parameters
@@ -137,8 +221,10 @@ def extract_windows(image, xy_pred_px, *, mesh, saturation_adu: float, smear_px,
     image : (H, W) array
         The frame, ADU, the same shape as the full frame the mesh is of.
     xy_pred_px : (M, 2) array
-        Predicted centroids (x right, y down), e.g. the catalog stars projected with the
-        predicted attitude; those off the frame are ignored.
+        Predicted centroids (x right, y down), brightest first, e.g. the catalog stars
+        projected with the predicted attitude; those off the frame are ignored.  Their
+        common error (the predicted attitude's) is measured first on the brightest
+        :data:`ACQUIRE_STARS` (searched :data:`ACQUIRE_PX` far) and removed.
     mesh : Mesh
         The background mesh of a recent full frame (:func:`frame_extraction`).
     saturation_adu : float
@@ -178,7 +264,7 @@ def extract_windows(image, xy_pred_px, *, mesh, saturation_adu: float, smear_px,
     bg, noise = mesh.at(col, row)
     win = gather_streak_windows(arr, col, row, hx, hy, bg, noise)
     n_pred = len(col)
-    shift = _ring_shift(win)
+    shift, local = _ring_shift(win)
     noise_adu = mesh.noise_adu
     if not math.isfinite(shift):
         return WindowResult(None, "no background pixel in the windows", n_pred)
@@ -205,9 +291,19 @@ def extract_windows(image, xy_pred_px, *, mesh, saturation_adu: float, smear_px,
     bad = saturated.copy()
     bad.reshape(-1)[masked] = True
     win = replace(win, valid=win.valid & ~bad.reshape(-1)[flat_idx])
-    # the peak of each window, the detection test, one star per streak footprint
-    dx, dy, snr = _peaks(win, smear, sigma, search, mesh.box_noise_factor)
-    found = np.flatnonzero(snr >= threshold_sigma)
+    # the predictions' common error, then the peak of each window, the detection test, one
+    # star per streak footprint
+    taps, reach = _taps(smear, sigma)
+    centre = (0, 0) if _moved else _common_offset(win, taps, reach, mesh.box_noise_factor, local,
+                                                  float(threshold_sigma))
+    if abs(centre[0]) + reach[0] + search > hx or abs(centre[1]) + reach[1] + search > hy:
+        # beyond the windows: the frame again with the predictions moved (rare)
+        return extract_windows(image, xy + np.array(centre, dtype=float), mesh=mesh, saturation_adu=saturation_adu,
+                               smear_px=smear, psf_sigma_px=psf_sigma_px, gain_e_per_adu=gain_e_per_adu,
+                               threshold_sigma=threshold_sigma, search_px=search_px, _moved=True)
+    dx, dy, snr = _peaks(win, taps, search, mesh.box_noise_factor, local, centre)
+    found = np.flatnonzero(snr >= PEAK_SNR_FRACTION * threshold_sigma)
+    crowded = _crowded(win.take(found), dx[found], dy[found], smear, sigma, mesh.box_noise_factor)
     col, row, snr = col[found] + dx[found], row[found] + dy[found], snr[found]
     order = np.argsort(-snr, kind="stable")
     u = smear / length if length >= STREAK_MIN_PX else np.array([1.0, 0.0])
@@ -219,7 +315,8 @@ def extract_windows(image, xy_pred_px, *, mesh, saturation_adu: float, smear_px,
     if dropped.any():                       # a dropped peak's star was merged into the nearest kept one
         d = np.hypot(*(peak_xy[dropped][:, None, :] - peak_xy[kept][None, :, :]).transpose(2, 0, 1))
         blend[np.unique(np.argmin(d, axis=1))] = True
-    det = dict(col=col[kept], row=row[kept], snr=snr[kept], label=np.arange(len(kept)), npix=None, too_big=blend)
+    det = dict(col=col[kept], row=row[kept], snr=snr[kept], label=np.arange(len(kept)), npix=None,
+               too_big=blend | crowded[kept])
     if not len(kept):
         empty = dict(xy=np.zeros((0, 2)), flux=np.zeros(0), peak=np.zeros(0), npix=np.zeros(0, dtype=np.int64),
                      flags=np.zeros(0, dtype=np.int64), snr=np.zeros(0), xy_cov=np.zeros((0, 2, 2)))

@@ -64,8 +64,9 @@ class PipelineOptions:
     windowed_full_frame_every : int
         Windowed tracking (``extract._windowed``, docs/pipeline.md *Windowed tracking*):
         a tracked frame's stars are measured only in windows around their predicted
-        places, with a full frame at least every this many frames and whenever the
-        windows fall short (0, the default: every frame whole).
+        places; every frame whose index in the session is a multiple of this, the frame
+        after a lost one, and a frame whose windows fall short are extracted whole (0,
+        the default: every frame whole).
     """
 
     refraction_model: str = "erfa"

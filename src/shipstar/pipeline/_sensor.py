@@ -61,8 +61,9 @@ _MAX_SMEAR_HINT_GAP_S = 0.5
 WINDOW_MIN_FOUND_FRACTION = 0.7
 #: ... and at least this many.
 WINDOW_MIN_STARS = 6
-#: ... looking for each star this far (px) from its predicted place.
-WINDOW_SEARCH_PX = 3.0
+#: ... looking for each star this far (px) from its predicted place, once the places'
+#: common error is removed (``extract._windowed.ACQUIRE_PX``).
+WINDOW_SEARCH_PX = 2.0
 #: Star databases by camera (``build_database`` costs ~7 ms even when memoised: it
 #: derives the magnitude limit and digests the catalog first).
 _DATABASES: dict = {}
@@ -395,13 +396,15 @@ class SensorProcessor:
         self.conditions = ConditionMonitor(config.camera, options)
         self._floor_used_px = options.centroid_floor_px
         self._shape = None
-        # windowed tracking: the last full frame's mesh and saturation level, the windowed
-        # frames since, the stars it identified; the catalog's stars near the field
+        # windowed tracking: the last full frame's mesh and saturation level, whether the next
+        # frame must be whole (after a failure), the stars it identified; the catalog's stars
+        # near the field
         self._full_frame = None
-        self._since_full = 0
+        self._whole_next = False
         self._last_full = True
         self._full_n_id = 0
         self._window_stars = None
+        self._tracked = None              # (database rows (sorted), their measured ICRS directions (M, 3))
         #: Frames extracted whole and in windows.
         self.extraction_counts = {"full": 0, "windowed": 0}
 
@@ -412,7 +415,7 @@ class SensorProcessor:
         return self._database
 
     # -- steps ---------------------------------------------------------------------------
-    def _measure(self, frame, t_s: float = math.nan, site=None):
+    def _measure(self, frame, t_s: float = math.nan, site=None, index: int = 0):
         """``(xy_px (N, 2), sigma_px (N,) or None, cov_px2 (N, 2, 2) or None)``: centroids of
         the frame, largest flux first, their sigmas with the noise floor added in quadrature
         and the extraction's covariances (the floor and shape added by :meth:`_horizontal`,
@@ -436,16 +439,15 @@ class SensorProcessor:
                 prior = None
         extrapolated = len(self._history) >= 2 and t_s - self._history[-1][0] <= _MAX_PRIOR_GAP_S
         image = self.conditions.mask(image, frame, site, prior, extrapolated=extrapolated)
-        ex = self._windowed(image, frame, t_s, prior, extrapolated)
+        ex = self._windowed(image, frame, index, t_s, prior, extrapolated)
         self._last_full = ex is None
         if ex is None:
             ex, mesh, level = frame_extraction(image, threshold_sigma=self.options.threshold_sigma,
                                                psf_sigma_px=cam.psf_sigma_px, gain_e_per_adu=cam.gain_e_per_adu,
                                                smear_px=self._smear_hint_px(frame, t_s))
-            self._full_frame, self._since_full = (mesh, level), 0
+            self._full_frame, self._whole_next = (mesh, level), False
             self.extraction_counts["full"] += 1
         else:
-            self._since_full += 1
             self.extraction_counts["windowed"] += 1
         keep = self.conditions.keep(image, ex, prior)
         order = rank_by_flux(ex.flux_adu)
@@ -499,19 +501,21 @@ class SensorProcessor:
         smear = ends[1] - ends[0]
         return smear if np.all(np.isfinite(smear)) else None
 
-    def _windowed(self, image, frame, t_s: float, prior, extrapolated: bool):
+    def _windowed(self, image, frame, index: int, t_s: float, prior, extrapolated: bool):
         """The frame's stars measured in windows around the catalog stars the prior
         predicts (:func:`shipstar.extract._windowed.extract_windows`), or None: the frame is
-        then extracted whole (windowed tracking off, a full frame due, no recent full
-        frame, a prior not extrapolated from two solved frames, the Moon or the Sun in the
-        field, no motion fit, the camera's PSF or gain unknown, the windows refused or
-        finding too few stars)."""
+        then extracted whole (windowed tracking off, a full frame due -- every frame whose
+        ``index`` in the session is a multiple of ``windowed_full_frame_every``, so that
+        the same frames are whole however a night is cut into chunks -- the frame after
+        a lost one, no full frame yet, a prior not extrapolated from two solved frames,
+        the Moon or the Sun in the field, no motion fit, the camera's PSF or gain
+        unknown, the windows refused or finding too few stars)."""
         from shipstar.extract._core import MAX_SMEAR_PX
         from shipstar.extract._windowed import extract_windows
 
         every = self.options.windowed_full_frame_every
         cam = self.config.camera
-        if every <= 1 or self._full_frame is None or self._since_full + 1 >= every or prior is None \
+        if every <= 1 or index % every == 0 or self._whole_next or self._full_frame is None or prior is None \
                 or not extrapolated or self.conditions.discs or cam.psf_sigma_px is None \
                 or cam.gain_e_per_adu is None:
             return None
@@ -529,7 +533,12 @@ class SensorProcessor:
 
     def _predicted_xy_px(self, C_icrs_from_sensor) -> np.ndarray:
         """(M, 2) pixel places of the star database's stars near the field, seen with the
-        attitude ``C_icrs_from_sensor`` (off-image ones included; the windows drop them)."""
+        attitude ``C_icrs_from_sensor`` (off-image ones included; the windows drop them).
+
+        A star the last solved frame identified is put where that frame saw it, turned by
+        the attitude's change (its refraction, aberration and the camera's residual
+        distortion then cancel: at low elevation differential refraction alone moves the
+        catalog's places by pixels across a field); the others at their catalog places."""
         cam = self.config.camera
         if self._window_stars is None:
             u = np.asarray(self.database.u_icrs, dtype=float)
@@ -538,8 +547,15 @@ class SensorProcessor:
             cos_reach = float(np.min(cam.unproject(corners) @ self._centre_u))
             self._window_stars = (u, math.cos(min(math.pi / 2, math.acos(min(1.0, cos_reach)) + 0.02)))
         u, cos_limit = self._window_stars
-        w = u @ np.asarray(C_icrs_from_sensor, dtype=float)          # sensor axes: C^T u, row-wise
-        return cam.project(w[w @ self._centre_u > cos_limit])
+        C = np.asarray(C_icrs_from_sensor, dtype=float)
+        rows = np.flatnonzero(u @ (C @ self._centre_u) > cos_limit)   # within reach of the image centre
+        v = u[rows]
+        if self._tracked is not None and len(self._tracked[0]):
+            seen, v_seen = self._tracked
+            k = np.minimum(np.searchsorted(seen, rows), len(seen) - 1)
+            hit = seen[k] == rows
+            v[hit] = v_seen[k[hit]]
+        return cam.project(v @ C)                                     # sensor axes: C^T v, row-wise
 
     def _prior(self, t_s: float):
         """Predicted C_icrs_from_sensor at ``t_s`` from the last two solved frames (or None)."""
@@ -570,6 +586,14 @@ class SensorProcessor:
         self._history = (self._history + [(t_s, np.asarray(idn.C_icrs_from_sensor))])[-2:]
         if self._last_full:
             self._full_n_id = int(np.count_nonzero(np.asarray(idn.hip) >= 0))
+        if self.options.windowed_full_frame_every > 1:
+            # where this frame saw its stars (refraction, aberration and the camera's residual
+            # distortion included): the next frame's windows are put there, turned by the motion
+            rows = np.asarray(idn.star_index)
+            m = rows >= 0
+            order = np.argsort(rows[m], kind="stable")
+            v = np.asarray(idn.u_sensor, dtype=float)[m][order] @ np.asarray(idn.C_icrs_from_sensor).T
+            self._tracked = (rows[m][order], v) if np.all(np.isfinite(v)) else None
         # a calibrated camera: the identification's unit vectors are camera.unproject(xy)
         u = idn.u_sensor if idn.focal_scale == 1.0 and idn.radial_k1 == 0.0 else None
         return np.asarray(idn.hip, np.int64), idn.mode, np.asarray(idn.C_icrs_from_sensor), u
@@ -639,14 +663,14 @@ class SensorProcessor:
         n_det, n_id, mode, C_icrs = 0, 0, "", _NAN33.copy()
         measured = False
         try:
-            xy, sigma_px, cov_px2 = self._measure(frame, t_s, site)
+            xy, sigma_px, cov_px2 = self._measure(frame, t_s, site, index)
             n_det, measured = len(xy), True
             hip, mode, C_icrs, u_sensor = self._identify(frame, xy, t_s)
             shape = self._shape
             h, site, weather, n_id, inputs = self._horizontal(frame, xy, sigma_px, hip, u_sensor, site, weather,
                                                               cov_px2, shape)
         except ShipstarError as exc:
-            self._since_full = self.options.windowed_full_frame_every     # windowed tracking: the next one whole
+            self._whole_next = True                  # windowed tracking: the next frame whole
             reason = self._lost_reason(str(exc), frame, n_det, t_s) if measured else str(exc)
             return FrameResult(self.config.name, index, label, frame.utc_jd1, frame.utc_jd2, False, reason, mode,
                                n_det, n_id, C_icrs, None, ShipAttitude.failed(reason, "single"), None, None,
@@ -660,7 +684,7 @@ class SensorProcessor:
             self.conditions.add_solved(fr, self._floor_used_px, h, t_s, self._shape)
             fr = replace(fr, noise_floor_arcsec=self.noise_floor_arcsec)
         else:
-            self._since_full = self.options.windowed_full_frame_every
+            self._whole_next = True
             reason = self._lost_reason(fr.reason, frame, n_det, t_s)
             if reason != fr.reason:
                 fr = replace(fr, reason=reason, ship=ShipAttitude.failed(reason, "single"))
