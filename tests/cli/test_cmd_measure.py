@@ -128,6 +128,24 @@ def test_streak_correction_can_be_turned_off(session, tmp_path):
     assert all(summary["sensors"][s]["n_streak_corrected"] == 0 for s in ("A1", "A2"))
 
 
+def test_windowed_tracking_is_recorded_and_counted(session, tmp_path):
+    """8 sea frames a sensor, a full frame every 3: the frames whose motion is known (from
+    frame 5: frame 4's solve gives the first fit) and whose index is not a multiple of 3
+    (5, 7) go in windows; the summary says so, and every row is solved as with whole
+    frames. A negative N is refused in one line."""
+    proc = _run(SEA + ["--out", str(tmp_path / "w.csv"), "--windowed-full-frame-every", "3", "--json"], session)
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    assert summary["windowed_full_frame_every"] == 3
+    assert [summary["sensors"][s]["n_windowed"] for s in ("A1", "A2")] == [2, 2], summary["sensors"]
+    assert all(summary["sensors"][s]["n_solved"] == 8 for s in ("A1", "A2"))
+    whole = _run(SEA + ["--out", str(tmp_path / "f.csv"), "--json"], session)
+    assert json.loads(whole.stdout)["windowed_full_frame_every"] == 0
+    assert all(json.loads(whole.stdout)["sensors"][s]["n_windowed"] == 0 for s in ("A1", "A2"))
+    bad = _run(SEA + ["--out", str(tmp_path / "b.csv"), "--windowed-full-frame-every", "-1"], session)
+    assert bad.returncode == 2 and "windowed-full-frame-every" in bad.stderr and "Traceback" not in bad.stderr
+
+
 def test_dock_single_sensor_text_summary(session):
     from shipstar.pipeline._tables import read_csv_table
 

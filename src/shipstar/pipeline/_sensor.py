@@ -182,6 +182,9 @@ class FrameResult:
         The part of ``horizontal.covariance_rad2`` that is common to the frame's stars (the
         streak model's error, :func:`shipstar.pipeline._exposure.streak_model_covariance`),
         sensor axes; None when the frame was not streak-corrected.
+    windowed : bool
+        Its stars were measured in windows around their predicted places (windowed
+        tracking, ``PipelineOptions.windowed_full_frame_every``), not in the whole frame.
     """
 
     sensor: str
@@ -206,6 +209,7 @@ class FrameResult:
     time_source: str = ""
     noise_floor_arcsec: float = math.nan
     model_covariance_rad2: np.ndarray | None = field(default=None, repr=False)
+    windowed: bool = False
 
     @classmethod
     def failed(cls, sensor: str, index: int, frame, reason: str) -> "FrameResult":
@@ -662,6 +666,7 @@ class SensorProcessor:
         label = frame.label or f"#{index}"
         n_det, n_id, mode, C_icrs = 0, 0, "", _NAN33.copy()
         measured = False
+        self._last_full = True
         try:
             xy, sigma_px, cov_px2 = self._measure(frame, t_s, site, index)
             n_det, measured = len(xy), True
@@ -674,10 +679,12 @@ class SensorProcessor:
             reason = self._lost_reason(str(exc), frame, n_det, t_s) if measured else str(exc)
             return FrameResult(self.config.name, index, label, frame.utc_jd1, frame.utc_jd2, False, reason, mode,
                                n_det, n_id, C_icrs, None, ShipAttitude.failed(reason, "single"), None, None,
-                               time.perf_counter() - t0, frame.exposure_s, time_source=frame.time_source)
+                               time.perf_counter() - t0, frame.exposure_s, time_source=frame.time_source,
+                               windowed=not self._last_full)
         fr = FrameResult(self.config.name, index, label, frame.utc_jd1, frame.utc_jd2, bool(h.solved), h.reason,
                          mode, n_det, n_id, C_icrs, h, self._ship(h), site, weather, time.perf_counter() - t0,
-                         frame.exposure_s, solve_inputs=inputs, time_source=frame.time_source)
+                         frame.exposure_s, solve_inputs=inputs, time_source=frame.time_source,
+                         windowed=not self._last_full)
         if self._motion is not None and fr.solved:
             fr = self._streaks(fr, t_s, extracted=frame.xy_px is None)
         if fr.solved:

@@ -164,6 +164,7 @@ class _SensorStats:
         self.residual = _Median(counts=state.get("residual"))
         self.n_streak_corrected = state.get("n_streak_corrected", 0)
         self.n_streak_not_corrected = state.get("n_streak_not_corrected", 0)
+        self.n_windowed = state.get("n_windowed", 0)
         self.max_streak = state.get("max_streak", 0.0)
         self.failures = list(state.get("failures", []))
         self.n_failures = state.get("n_failures", 0)
@@ -197,6 +198,7 @@ class _SensorStats:
             self.n_by_reason[key] = self.n_by_reason.get(key, 0) + 1
             if len(self.failures) < _MAX_LISTED_FAILURES:
                 self.failures.append({"frame": fr.label, "time_utc": fr.utc_iso, "reason": fr.reason})
+        self.n_windowed += bool(getattr(fr, "windowed", False))
         c = fr.streak_correction_arcsec
         if math.isnan(c):
             self.n_streak_not_corrected += 1
@@ -208,8 +210,8 @@ class _SensorStats:
         return {"n_frames": self.n_frames, "n_solved": self.n_solved, "stars": self.stars.counts,
                 "residual": self.residual.counts, "n_streak_corrected": self.n_streak_corrected,
                 "n_streak_not_corrected": self.n_streak_not_corrected, "max_streak": self.max_streak,
-                "failures": self.failures, "n_failures": self.n_failures, "n_sky": self.n_sky,
-                "first_sky": self.first_sky, "n_by_reason": self.n_by_reason, "floor": self.floor.counts,
+                "n_windowed": self.n_windowed, "failures": self.failures, "n_failures": self.n_failures,
+                "n_sky": self.n_sky, "first_sky": self.first_sky, "n_by_reason": self.n_by_reason, "floor": self.floor.counts,
                 "last_floor": self.last_floor}
 
     def availability(self) -> dict:
@@ -234,7 +236,7 @@ class _SensorStats:
             "n_sun_in_field": self.n_sky.get(SUN_REASON, 0),
             "median_stars_used": self.stars.value(), "median_residual_rms_arcsec": self.residual.value(),
             "n_streak_corrected": self.n_streak_corrected, "n_streak_not_corrected": self.n_streak_not_corrected,
-            "max_streak_correction_arcsec": self.max_streak,
+            "max_streak_correction_arcsec": self.max_streak, "n_windowed": self.n_windowed,
             "failures": list(self.failures), "failures_not_listed": self.n_failures - len(self.failures),
         }
 
@@ -429,6 +431,7 @@ class SessionStats:
             "n_epochs": self.n_epochs,
             "refraction_model": options.refraction_model, "refraction": options.refraction,
             "streak_correction": options.streak_correction,
+            "windowed_full_frame_every": getattr(options, "windowed_full_frame_every", 0),
             "methods": {m: b.block(self.truth is not None) for m, b in self._methods.items()},
             "availability": {name: s.availability() for name, s in self._sensors.items()},
             "seeing": {name: s.seeing() for name, s in self._sensors.items()},
