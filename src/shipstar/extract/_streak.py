@@ -101,11 +101,11 @@ def gather_streak_windows(image, col, row, hx, hy, bg, noise, bad=None) -> Strea
     rows = row[:, None] + np.arange(-hy, hy + 1)
     cols = col[:, None] + np.arange(-hx, hx + 1)
     valid = ((rows >= 0) & (rows < height))[:, :, None] & ((cols >= 0) & (cols < width))[:, None, :]
-    r_idx = np.clip(rows, 0, height - 1)[:, :, None]
-    c_idx = np.clip(cols, 0, width - 1)[:, None, :]
-    values = image[r_idx, c_idx].astype(float)
+    # flat indices and one take (2-D fancy indexing costs ~2 x more)
+    flat = np.clip(rows, 0, height - 1)[:, :, None] * width + np.clip(cols, 0, width - 1)[:, None, :]
+    values = np.asarray(image).reshape(-1).take(flat).astype(float)
     if bad is not None:
-        valid &= ~bad[r_idx, c_idx]
+        valid &= ~np.asarray(bad).reshape(-1).take(flat)
     return StreakWindows(values=values, valid=valid, x0=(col - hx).astype(float), y0=(row - hy).astype(float),
                          noise=np.asarray(noise, dtype=float), bg=np.asarray(bg, dtype=float))
 

@@ -276,9 +276,14 @@ def extract_windows(image, xy_pred_px, *, mesh, saturation_adu: float, smear_px,
     rows = row[:, None] + np.arange(-hy, hy + 1)
     cols = col[:, None] + np.arange(-hx, hx + 1)
     flat_idx = np.clip(rows, 0, height - 1)[:, :, None] * width + np.clip(cols, 0, width - 1)[:, None, :]
+    # (H, W) masks for the fits' windows, written only where the windows are (np.zeros maps
+    # its pages lazily: a copy of a full-frame mask would cost ~0.7 ms here)
     saturated = np.zeros(arr.shape, dtype=bool)
+    bad = np.zeros(arr.shape, dtype=bool)
     if math.isfinite(saturation_adu):
-        saturated.reshape(-1)[flat_idx[win.valid & (win.values >= saturation_adu)]] = True
+        at_top = flat_idx[win.valid & (win.values >= saturation_adu)]
+        saturated.reshape(-1)[at_top] = True
+        bad.reshape(-1)[at_top] = True
     level = (bg + 3.5 * mesh.box_noise_factor * noise)[:, None, None]
     cand = np.unique(flat_idx[win.valid & (win.values > level)])
     flat = arr.reshape(-1)
@@ -288,7 +293,6 @@ def extract_windows(image, xy_pred_px, *, mesh, saturation_adu: float, smear_px,
 
     segment_sigma = min(SEGMENT_SIGMA, float(threshold_sigma))
     masked = sharp_pixels(arr, mesh, test, segment_sigma, idx=cand)
-    bad = saturated.copy()
     bad.reshape(-1)[masked] = True
     win = replace(win, valid=win.valid & ~bad.reshape(-1)[flat_idx])
     # the predictions' common error, then the peak of each window, the detection test, one
