@@ -247,6 +247,8 @@ def main() -> int:
     ap.add_argument("--duration-s", type=float, default=60.0)
     ap.add_argument("--offset-ms", type=float, default=0.0, help="A2 exposes this much after A1 (default 0)")
     ap.add_argument("--workdir", type=Path, help="where the session is rendered (kept; default a temporary dir)")
+    ap.add_argument("--windowed-full-frame-every", type=int, default=0, metavar="N",
+                    help="measure and live with windowed tracking, a full frame every N (default 0: whole frames)")
     ap.add_argument("--browsers", type=int, default=0, help=argparse.SUPPRESS)
     ap.add_argument("--console", action="store_true",
                     help="instead: latency of live --http with 0 and 2 headless Chromium pages connected, in "
@@ -272,7 +274,7 @@ def main() -> int:
     if args.console:
         return console_comparison(root, args)
     truth = TruthTable.read_csv(root / "sea" / "truth.csv")
-    common = ["--install", "A1.toml", "A2.toml"]
+    common = ["--install", "A1.toml", "A2.toml", "--windowed-full-frame-every", str(args.windowed_full_frame_every)]
 
     # the anchor: measure on the same frames
     t0 = time.perf_counter()

@@ -30,8 +30,10 @@ the reason; it never stops the session.
 The state a :class:`SensorProcessor` carries from frame to frame is bounded and explicit:
 the last two solved frames' J2000 attitudes (the tracking prior) and the last
 :data:`~shipstar.pipeline._motion.MOTION_WINDOW_S` seconds of its solved horizontal
-attitudes (the streak correction's motion fit).  A frame's result depends on no later
-frame.
+attitudes (the streak correction's motion fit); with windowed tracking
+(``PipelineOptions.windowed_full_frame_every``) also the last full frame's background
+mesh and saturation level and the last solved frame's identified star directions (where
+the next frame's windows go).  A frame's result depends on no later frame.
 """
 
 from __future__ import annotations
