@@ -30,6 +30,15 @@ def _scene(smear, seed, hot_pixel_fraction=0.0):
     return cam, xy, img
 
 
+def _tracked_scene(smear, seed):
+    """``_scene``'s truth and frame, the full frame's mesh, and ``extract_windows``'s keywords."""
+    cam, xy, img = _scene(smear, seed)
+    _, mesh, level = frame_extraction(img, psf_sigma_px=cam.psf_sigma_px, gain_e_per_adu=cam.gain_e_per_adu,
+                                      smear_px=smear)
+    return xy, img, mesh, dict(mesh=mesh, saturation_adu=level, smear_px=smear, psf_sigma_px=cam.psf_sigma_px,
+                               gain_e_per_adu=cam.gain_e_per_adu)
+
+
 def _match(found_xy, true_xy, radius=1.5):
     d = np.linalg.norm(found_xy[:, None, :] - true_xy[None], axis=2)
     j = np.argmin(d, axis=1)
@@ -73,12 +82,7 @@ def test_windows_find_the_full_frames_stars_at_the_cramer_rao_bound(smear):
 def test_background_moved_since_the_full_frame_refuses_the_windows():
     """A sky brighter by more than the allowed shift (cloud lit by the Moon, twilight):
     refused with its reason, the caller extracts the frame whole; within it, accepted."""
-    smear = (10.0, 4.0)
-    cam, xy, img = _scene(smear, 3)
-    _, mesh, level = frame_extraction(img, psf_sigma_px=cam.psf_sigma_px, gain_e_per_adu=cam.gain_e_per_adu,
-                                      smear_px=smear)
-    kw = dict(mesh=mesh, saturation_adu=level, smear_px=smear, psf_sigma_px=cam.psf_sigma_px,
-              gain_e_per_adu=cam.gain_e_per_adu)
+    xy, img, mesh, kw = _tracked_scene((10.0, 4.0), 3)
     step = 2.0 * MAX_BACKGROUND_SHIFT_SIGMA * mesh.noise_adu
     brighter = (img.astype(np.int64) + int(np.ceil(step))).astype(np.uint16)
     res = extract_windows(brighter, xy, **kw)
@@ -94,12 +98,7 @@ def test_background_moved_since_the_full_frame_refuses_the_windows():
 def test_hot_pixels_and_cosmic_rays_in_a_window_are_not_stars():
     """Single hot pixels (far above the threshold) at predicted places with no star, and
     one beside a star: none found as a star, the star's centroid unmoved."""
-    smear = (8.0, 3.0)
-    cam, xy, img = _scene(smear, 5)
-    _, mesh, level = frame_extraction(img, psf_sigma_px=cam.psf_sigma_px, gain_e_per_adu=cam.gain_e_per_adu,
-                                      smear_px=smear)
-    kw = dict(mesh=mesh, saturation_adu=level, smear_px=smear, psf_sigma_px=cam.psf_sigma_px,
-              gain_e_per_adu=cam.gain_e_per_adu)
+    xy, img, mesh, kw = _tracked_scene((8.0, 3.0), 5)
     clean = extract_windows(img, xy, **kw).extraction
     hot = img.copy()
     spots = np.array([[185, 185], [445, 575], [705, 315]])
@@ -130,20 +129,13 @@ def test_windowed_tracking_in_a_sea_session_is_as_accurate_as_full_frames(monkey
     import sys
     from pathlib import Path
 
-    from shipstar.pipeline import Frame, attitude_errors_arcsec, method_series, process_session
+    from shipstar.pipeline import attitude_errors_arcsec, method_series, process_session
     from shipstar.pipeline import _sensor
-    from shipstar.simulate._session import _sensor_frame, sea_session
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from test_pipeline import _tables, _true_configs
+    from test_pipeline import _image_sea_session
 
-    T = 0.03
-    spec = sea_session(duration_s=3.0, exposure_s=T)
-    frames = [[Frame(sim.utc_jd1, sim.utc_jd2, f"{s.name}_{k:04d}", image=sim.image, exposure_s=T)
-               for k, t in enumerate(spec.times_s(s)) for sim in [_sensor_frame(spec, s, k, float(t))]]
-              for s in spec.sensors]
-    track, weather, truth = _tables(spec)
-    configs = [c.__class__(c.name, c.camera.replace(exposure_s=T), c.installation) for c in _true_configs(spec)]
+    _, frames, track, weather, truth, configs = _image_sea_session(3.0, 0.03)
     counts = []
     init = _sensor.SensorProcessor.__init__
 

@@ -45,6 +45,21 @@ def _frames(centroids, spec):
              for f in centroids[s.name]] for s in spec.sensors]
 
 
+def _image_sea_session(duration_s, exposure_s):
+    """An image-level sea session rendered in memory: ``(frames per sensor, track, weather,
+    truth, configs)``, the configs' cameras set to ``exposure_s`` and the true installations."""
+    from shipstar.simulate._session import _sensor_frame, sea_session
+
+    spec = sea_session(duration_s=duration_s, exposure_s=exposure_s)
+    frames = [[Frame(sim.utc_jd1, sim.utc_jd2, f"{s.name}_{k:04d}", image=sim.image, exposure_s=exposure_s)
+               for k, t in enumerate(spec.times_s(s)) for sim in [_sensor_frame(spec, s, k, float(t))]]
+              for s in spec.sensors]
+    track, weather, truth = _tables(spec)
+    configs = [c.__class__(c.name, c.camera.replace(exposure_s=exposure_s), c.installation)
+               for c in _true_configs(spec)]
+    return spec, frames, track, weather, truth, configs
+
+
 def _tables(spec):
     """Track, weather and truth tables of a simulated session, sampled from its model."""
     j1, j2 = spec.utc_jd(0.0)

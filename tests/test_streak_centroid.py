@@ -158,20 +158,14 @@ def test_smear_hint_is_the_true_image_motion_and_leaves_the_attitudes_as_good(mo
     import sys
     from pathlib import Path
 
-    from shipstar.pipeline import Frame, PipelineOptions, attitude_errors_arcsec, method_series, process_session
+    from shipstar.pipeline import PipelineOptions, attitude_errors_arcsec, method_series, process_session
     from shipstar.pipeline import _sensor
-    from shipstar.simulate._session import _sensor_frame, sea_session
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from test_pipeline import _tables, _true_configs
+    from test_pipeline import _image_sea_session
 
     T = 0.03
-    spec = sea_session(duration_s=2.5, exposure_s=T)
-    frames = [[Frame(sim.utc_jd1, sim.utc_jd2, f"{s.name}_{k:04d}", image=sim.image, exposure_s=T)
-               for k, t in enumerate(spec.times_s(s)) for sim in [_sensor_frame(spec, s, k, float(t))]]
-              for s in spec.sensors]
-    track, weather, truth = _tables(spec)
-    configs = [c.__class__(c.name, c.camera.replace(exposure_s=T), c.installation) for c in _true_configs(spec)]
+    spec, frames, track, weather, truth, configs = _image_sea_session(2.5, T)
     hints = []
     predict = _sensor.SensorProcessor._smear_hint_px
 
