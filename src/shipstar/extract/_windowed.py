@@ -8,11 +8,8 @@ segmentation) are replaced by the same steps inside one window per predicted sta
 with the background mesh and the saturation level of a recent full frame
 (:func:`~shipstar.extract._core.frame_extraction`):
 
-1. the predictions' common error (the predicted attitude's: the sensor's motion
-   extrapolated over a frame period is off by pixels when the ship's rate changes) from
-   the peaks of the brightest few, searched wider, and a window around each prediction
-   so moved: the streak's extent, the fit's margin and the prediction's own error
-   (``search_px``);
+1. a window around each prediction: the streak's extent, the fit's margin and the
+   prediction's own error (``search_px``);
 2. the background's drift since the full frame, from the windows' border rings (the
    clipped mean of their pixels less the mesh): beyond
    :data:`MAX_BACKGROUND_SHIFT_SIGMA` of the noise, or enough to change the noise's
@@ -20,18 +17,22 @@ with the background mesh and the saturation level of a recent full frame
    extracts it whole: cloud, the Moon, twilight);
 3. hot pixels and cosmic rays among the windows' pixels (the frame-wide test of
    :func:`~shipstar.extract._smeared.sharp_pixels`), and saturated pixels, left out;
-4. the star's peak: the maximum of the line filter (the streak's pixels summed along the
-   smear, 3 across; a 3 x 3 box for a point) within ``search_px`` of the prediction, and
-   the detection test on it (:data:`PEAK_SNR_FRACTION` of ``threshold_sigma`` times its
-   white-noise sigma, the background each window's ring's); peaks of
-   two predictions within one streak's footprint are one star, flagged as a blend, and a
-   star whose window holds many bright pixels outside its footprint (a trail, another
-   object) is flagged too (``elongated``, as a full frame flags them: the caller's trail
-   test then looks at its whole region);
+4. the predictions' common error (the predicted attitude's: the sensor's motion
+   extrapolated over a frame period is off by pixels when the ship's rate changes), from
+   the peaks of the brightest :data:`ACQUIRE_STARS` windows searched as far as the
+   windows reach (at most :data:`ACQUIRE_PX`; beyond that the windows are gathered again
+   at the moved places); then each star's peak: the maximum of the line filter (the
+   streak's pixels summed along the smear, 3 across; a 3 x 3 box for a point) within
+   ``search_px`` of its moved prediction, and the detection test on it
+   (:data:`PEAK_SNR_FRACTION` of ``threshold_sigma`` times its white-noise sigma, the
+   background each window's ring's); peaks of two predictions within one streak's
+   footprint are one star, flagged as a blend, and a star whose window holds many bright
+   pixels outside its footprint (a trail, another object) is flagged too (``elongated``,
+   as a full frame flags them: the caller's trail test then looks at its whole region);
 5. the fits, exactly as in a full frame (:func:`~shipstar.extract._smeared.measure_streaks`):
    the common smear measured again from the brightest streaks (from :data:`REFINE_MIN_PX`
-   long, where a full frame is given the smear too; shorter, the prediction), the smear field, the
-   pixel-integrated Gaussian moved along each star's smear (a point when the smear is
+   long, where a full frame is given the smear too; shorter, the prediction), the smear
+   field, the pixel-integrated Gaussian moved along each star's smear (a point when the smear is
    zero); fitted flux SNR below 0.8 ``threshold_sigma`` dropped.
 
 Only predicted stars are found: a star missing from the prediction (not in the catalog,
