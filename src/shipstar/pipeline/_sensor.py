@@ -592,7 +592,7 @@ class SensorProcessor:
         self._history = (self._history + [(t_s, np.asarray(idn.C_icrs_from_sensor))])[-2:]
         if self._last_full:
             self._full_n_id = int(np.count_nonzero(np.asarray(idn.hip) >= 0))
-        if self.options.windowed_full_frame_every > 1:
+        if self.options.windowed_full_frame_every > 1 and idn.focal_scale == 1.0 and idn.radial_k1 == 0.0:
             # where this frame saw its stars (refraction, aberration and the camera's residual
             # distortion included): the next frame's windows are put there, turned by the motion
             rows = np.asarray(idn.star_index)
@@ -600,6 +600,8 @@ class SensorProcessor:
             order = np.argsort(rows[m], kind="stable")
             v = np.asarray(idn.u_sensor, dtype=float)[m][order] @ np.asarray(idn.C_icrs_from_sensor).T
             self._tracked = (rows[m][order], v) if np.all(np.isfinite(v)) else None
+        else:
+            self._tracked = None             # (the camera's own projection does not hold for these)
         # a calibrated camera: the identification's unit vectors are camera.unproject(xy)
         u = idn.u_sensor if idn.focal_scale == 1.0 and idn.radial_k1 == 0.0 else None
         return np.asarray(idn.hip, np.int64), idn.mode, np.asarray(idn.C_icrs_from_sensor), u
