@@ -213,8 +213,7 @@ def _crowded(win, dx, dy, smear, sigma: float, box_noise_factor: float) -> np.nd
 
 
 def extract_windows(image, xy_pred_px, *, mesh, saturation_adu: float, smear_px, psf_sigma_px: float,
-                    gain_e_per_adu: float, threshold_sigma: float = 5.0, search_px: float = 3.0,
-                    _moved: bool = False) -> WindowResult:
+                    gain_e_per_adu: float, threshold_sigma: float = 5.0, search_px: float = 3.0) -> WindowResult:
     """The stars of a frame measured in windows around their predicted places.
 
     Parameters
@@ -245,6 +244,14 @@ def extract_windows(image, xy_pred_px, *, mesh, saturation_adu: float, smear_px,
     -------
     WindowResult
     """
+    return _windows(image, xy_pred_px, mesh, saturation_adu, smear_px, psf_sigma_px, gain_e_per_adu,
+                    threshold_sigma, search_px, moved=False)
+
+
+def _windows(image, xy_pred_px, mesh, saturation_adu, smear_px, psf_sigma_px, gain_e_per_adu, threshold_sigma,
+             search_px, *, moved: bool) -> WindowResult:
+    """:func:`extract_windows`; ``moved``: the predictions were moved by their common error
+    already (it is not measured again)."""
     arr, _ = _prepare(image)
     if arr.shape != tuple(mesh.shape_hw):
         return WindowResult(None, f"frame is {arr.shape[1]}x{arr.shape[0]}, the full frame's mesh "
@@ -299,13 +306,12 @@ def extract_windows(image, xy_pred_px, *, mesh, saturation_adu: float, smear_px,
     # the predictions' common error, then the peak of each window, the detection test, one
     # star per streak footprint
     taps, reach = _taps(smear, sigma)
-    centre = (0, 0) if _moved else _common_offset(win, taps, reach, mesh.box_noise_factor, local,
+    centre = (0, 0) if moved else _common_offset(win, taps, reach, mesh.box_noise_factor, local,
                                                   float(threshold_sigma))
     if abs(centre[0]) + reach[0] + search > hx or abs(centre[1]) + reach[1] + search > hy:
         # beyond the windows: the frame again with the predictions moved (rare)
-        return extract_windows(image, xy + np.array(centre, dtype=float), mesh=mesh, saturation_adu=saturation_adu,
-                               smear_px=smear, psf_sigma_px=psf_sigma_px, gain_e_per_adu=gain_e_per_adu,
-                               threshold_sigma=threshold_sigma, search_px=search_px, _moved=True)
+        return _windows(image, xy + np.array(centre, dtype=float), mesh, saturation_adu, smear, psf_sigma_px,
+                        gain_e_per_adu, threshold_sigma, search_px, moved=True)
     dx, dy, snr = _peaks(win, taps, search, mesh.box_noise_factor, local, centre)
     found = np.flatnonzero(snr >= PEAK_SNR_FRACTION * threshold_sigma)
     crowded = _crowded(win.take(found), dx[found], dy[found], smear, sigma, mesh.box_noise_factor)
