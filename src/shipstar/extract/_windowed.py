@@ -328,14 +328,8 @@ def _windows(image, xy_pred_px, mesh, saturation_adu, smear_px, psf_sigma_px, ga
         blend[np.unique(np.argmin(d, axis=1))] = True
     det = dict(col=col[kept], row=row[kept], snr=snr[kept], label=np.arange(len(kept)), npix=None,
                too_big=blend | crowded[kept])
-    if not len(kept):
-        empty = dict(xy=np.zeros((0, 2)), flux=np.zeros(0), peak=np.zeros(0), npix=np.zeros(0, dtype=np.int64),
-                     flags=np.zeros(0, dtype=np.int64), snr=np.zeros(0), xy_cov=np.zeros((0, 2, 2)))
-        ex = _result(empty, mesh, sigma, arr.shape, None, smear)
-    else:
-        res = measure_streaks(arr, mesh, smear, threshold_sigma=float(threshold_sigma), segment_sigma=segment_sigma,
-                              sigma=sigma, inv_gain=inv_gain, bad=bad, saturated=saturated, fit=True,
-                              refine_smear=length >= REFINE_MIN_PX, det=det)
-        ex = _result(res, mesh, sigma, arr.shape, None, smear)
-    ex = replace(ex, background_adu=mesh.background_adu + shift)
+    res = measure_streaks(arr, mesh, smear, threshold_sigma=float(threshold_sigma), segment_sigma=segment_sigma,
+                          sigma=sigma, inv_gain=inv_gain, bad=bad, saturated=saturated, fit=True,
+                          refine_smear=length >= REFINE_MIN_PX, det=det)     # (no star: the empty arrays)
+    ex = replace(_result(res, mesh, sigma, arr.shape, None, smear), background_adu=mesh.background_adu + shift)
     return WindowResult(ex, "", n_pred, shift)

@@ -411,8 +411,6 @@ class SensorProcessor:
         self._full_n_id = 0
         self._window_stars = None
         self._tracked = None              # (database rows (sorted), their measured ICRS directions (M, 3))
-        #: Frames extracted whole and in windows.
-        self.extraction_counts = {"full": 0, "windowed": 0}
 
     @property
     def database(self):
@@ -452,9 +450,6 @@ class SensorProcessor:
                                                psf_sigma_px=cam.psf_sigma_px, gain_e_per_adu=cam.gain_e_per_adu,
                                                smear_px=self._smear_hint_px(frame, t_s))
             self._full_frame, self._whole_next = (mesh, level), False
-            self.extraction_counts["full"] += 1
-        else:
-            self.extraction_counts["windowed"] += 1
         keep = self.conditions.keep(image, ex, prior)
         order = rank_by_flux(ex.flux_adu)
         order = order[keep[order]]
