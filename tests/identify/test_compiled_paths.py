@@ -56,6 +56,55 @@ def test_one_call_paths_give_the_star_field_paths_answer(db12, cam12, db_a1, cam
             assert fast.solved
 
 
+def test_stored_size_steps_are_the_patterns_largest_edges(db12, db_a1):
+    # the look-up's first test reads each pattern's largest edge in uint16 steps; made
+    # here in NumPy from the float32 star vectors (the kernel's inputs)
+    from shipstar.identify._kernels import SIZE_STEPS, size_quantum_rad
+
+    for db in (db12, db_a1):
+        buf = _DbBuffers(db)
+        quantum = size_quantum_rad(db.params)
+        assert quantum == pytest.approx(db.params.pattern_fov_rad / SIZE_STEPS)
+        u = db.u_icrs.astype(np.float32).astype(np.float64)[db.pattern_stars.astype(np.intp)]
+        dots = np.stack([np.einsum("ij,ij->i", u[:, a], u[:, b])
+                         for a, b in ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))], axis=1)
+        steps = np.arccos(np.clip(dots.min(axis=1), -1.0, 1.0)) / quantum
+        want = np.minimum(np.floor(steps), 65535)
+        off = buf.size_q.astype(float) - want
+        near_edge = np.abs(steps - np.rint(steps)) < 1e-6          # rounding may cross a step
+        assert np.all(off[~near_edge] == 0) and np.all(np.abs(off[near_edge]) <= 1)
+        assert buf.size_q.max() < 65535                            # every edge inside the range
+
+
+def test_the_size_test_before_the_star_rows_changes_no_answer(db12, cam12, db_a1, cam_a1):
+    # size steps that pass every row (65535: open above) give the look-up without the
+    # early size test: the same answers; steps that pass none (0) solve nothing, so the
+    # test is on the path
+    from shipstar.identify._kernels import db_buffers
+
+    rng = np.random.default_rng(74)
+    for db, cam in ((db12, cam12), (db_a1, cam_a1)):
+        buf = db_buffers(db)                                       # the kernels' own
+        frames = []
+        for C in random_attitudes(15, rng):
+            f = simulate_frame(db, cam, C, rng, sigma_px=rng.uniform(0.1, 0.3),
+                               n_drop=int(rng.integers(0, 4)), n_false=int(rng.integers(0, 4)))
+            frames.append((f, cam.replace(f_mm=cam.f_mm * (1.0 + rng.uniform(-0.01, 0.01)))))
+        got = [identify_lost_in_space(f.xy_px, db, camera=est, focal_tolerance=0.012) for f, est in frames]
+        stored = buf.size_q
+        try:
+            buf.size_q = np.full_like(stored, 65535)
+            for (f, est), a in zip(frames, got):
+                b = identify_lost_in_space(f.xy_px, db, camera=est, focal_tolerance=0.012)
+                _same(a, b)
+                assert a.solved
+            buf.size_q = np.zeros_like(stored)
+            assert not any(identify_lost_in_space(f.xy_px, db, camera=est, focal_tolerance=0.012).solved
+                           for f, est in frames)
+        finally:
+            buf.size_q = stored
+
+
 def test_non_finite_centroids_take_the_general_path(db12, cam12):
     rng = np.random.default_rng(72)
     C = random_attitudes(1, rng)[0]

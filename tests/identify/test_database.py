@@ -116,12 +116,14 @@ def test_cache_file_holds_the_kernel_arrays_and_an_old_file_is_completed(tmp_cac
     (path,) = tmp_cache.glob("stardb_*.bin")
     _database._MEMO.clear()
     db = build_database(12.0, mag_limit=5.0)
-    u64, cell_u = _database.kernel_arrays(db)                     # read: mapped from the file
-    assert not u64.flags.writeable and not cell_u.flags.writeable
+    u64, cell_u, size_q = _database.kernel_arrays(db)             # read: mapped from the file
+    assert not u64.flags.writeable and not cell_u.flags.writeable and not size_q.flags.writeable
     np.testing.assert_array_equal(u64, fresh.u64)
     np.testing.assert_array_equal(cell_u, fresh.cell_u)
+    np.testing.assert_array_equal(size_q, fresh.size_q)
     mapped = _DbBuffers(db)
     assert mapped.cell_u is cell_u or np.shares_memory(mapped.cell_u, cell_u)
+    assert mapped.size_q is size_q or np.shares_memory(mapped.size_q, size_q)
     # a file written before the kernel arrays: read as it is, then completed once
     got = _database._read_header(path)
     head, start = got
@@ -142,6 +144,21 @@ def test_cache_file_holds_the_kernel_arrays_and_an_old_file_is_completed(tmp_cac
     _database._MEMO.clear()
     np.testing.assert_array_equal(_database.kernel_arrays(build_database(12.0, mag_limit=5.0))[1],
                                   fresh.cell_u)
+    # a file with the first two kernel arrays only (shipstar before the size steps):
+    # completed the same way
+    head, start = _database._read_header(path)
+    part = dict(head)
+    part["kernel_arrays"] = {k: v for k, v in head["kernel_arrays"].items() if k != "size_q"}
+    text = __import__("json").dumps(part, sort_keys=True).encode()
+    text += b" " * (-(16 + 8 + len(text)) % 64)
+    raw = path.read_bytes()
+    path.write_bytes(raw[:16] + len(text).to_bytes(8, "little") + text + raw[start:])
+    _database._MEMO.clear()
+    assert _database.kernel_arrays(build_database(12.0, mag_limit=5.0)) is None   # read, incomplete
+    assert "size_q" in _database._read_header(path)[0]["kernel_arrays"]          # completed
+    _database._MEMO.clear()
+    np.testing.assert_array_equal(_database.kernel_arrays(build_database(12.0, mag_limit=5.0))[2],
+                                  fresh.size_q)
 
 
 def test_stored_kernel_arrays_that_are_not_the_stars_are_refused(tmp_cache):
@@ -150,9 +167,10 @@ def test_stored_kernel_arrays_that_are_not_the_stars_are_refused(tmp_cache):
     build_database(12.0, mag_limit=5.0)
     _database._MEMO.clear()
     db = build_database(12.0, mag_limit=5.0)
-    u64, cell_u = _database.kernel_arrays(db)
+    u64, cell_u, size_q = _database.kernel_arrays(db)
     shifted = np.roll(cell_u, 1, axis=0)                          # misplaced rows
-    for stored in ((u64, shifted), (u64[::-1].copy(), cell_u), (2.0 * u64, cell_u)):
+    for stored in ((u64, shifted, size_q), (u64[::-1].copy(), cell_u, size_q),
+                   (2.0 * u64, cell_u, size_q), (u64, cell_u, np.roll(size_q, 1))):
         _database._KERNEL[db] = stored
         with pytest.raises(ValueError, match="inconsistent"):
             _DbBuffers(db)

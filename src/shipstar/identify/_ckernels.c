@@ -185,8 +185,35 @@ typedef struct {
     const int32_t *cell_start;
     const uint32_t *cell_index;
     const double *cell_u;       /* (M, 3): u64[cell_index], read in cell order */
+    const uint16_t *size_q;     /* (P,): each pattern's largest edge in size_quantum steps */
+    double size_quantum;        /* rad */
     long grid_n, key_bits, lo_bits, bins, n_patterns_db;
 } Db;
+
+/* the largest edge (rad) of the pattern of star rows ps: the smallest of its six dot
+ * products of float32 vectors, as the look-up computes it (PAIR_A / PAIR_B order) */
+static const int PAIR_A[6] = {0, 0, 0, 1, 1, 2};
+static const int PAIR_B[6] = {1, 2, 3, 2, 3, 3};
+static double clip1(double x) { return x < -1.0 ? -1.0 : (x > 1.0 ? 1.0 : x); }
+
+static double largest_edge(const float *u32, const uint32_t ps[4], double *dots, int *emin)
+{
+    double dmin = INFINITY;
+    *emin = 0;
+    for (int e = 0; e < 6; e++) {
+        const float *a = u32 + 3 * ps[PAIR_A[e]], *b = u32 + 3 * ps[PAIR_B[e]];
+        dots[e] = (double)a[0] * (double)b[0] + (double)a[1] * (double)b[1] + (double)a[2] * (double)b[2];
+        if (clip1(dots[e]) < dmin) { dmin = clip1(dots[e]); *emin = e; }
+    }
+    return acos(dmin);
+}
+
+/* the stored size step of a pattern whose largest edge is `largest` (rad) */
+static uint16_t size_step(double largest, double quantum)
+{
+    double q = floor(largest / quantum);
+    return q >= 65535.0 ? 65535 : (q <= 0.0 ? 0 : (uint16_t)q);
+}
 
 /* the 4 star rows of pattern `row` */
 static inline void pattern_row(const Db *db, long row, uint32_t ps[4])
@@ -382,9 +409,6 @@ static long associate(const double *ty, const double *tz, long n, const Pred *p,
 /* the 24 permutations of four stars (itertools order) and their edge maps */
 static int PERM[24][4];
 static int PERM_EDGES[24][6];
-static const int PAIR_A[6] = {0, 0, 0, 1, 1, 2};
-static const int PAIR_B[6] = {1, 2, 3, 2, 3, 3};
-
 static void init_perms(void)
 {
     int k = 0;
@@ -413,8 +437,6 @@ static void sort6(double *e)
         e[j + 1] = x;
     }
 }
-
-static double clip1(double x) { return x < -1.0 ? -1.0 : (x > 1.0 ? 1.0 : x); }
 
 typedef struct {
     long owner;                 /* pattern row in the batch */
@@ -749,7 +771,18 @@ static int pattern_candidates(Lis *L, const Db *db, long owner, const double *e6
         __builtin_prefetch(db->key_hi_start + his[n_probe]);
         n_probe++;
     }
-    for (int i = 0; i < n_probe; i++) __builtin_prefetch(db->key_lo + db->key_hi_start[his[i]]);
+    for (int i = 0; i < n_probe; i++) {
+        long a = db->key_hi_start[his[i]];
+        __builtin_prefetch(db->key_lo + a);
+        __builtin_prefetch(db->size_q + a);
+    }
+    /* a row whose stored largest edge (in size_quantum steps: its edge is within
+     * [q, q + 1) steps) cannot pass the size test below is not read further: most chance
+     * hits fail it, and each would cost the random reads of its star rows and vectors.
+     * The bounds are widened by 1e-9 so that rounding cannot drop a row the test keeps. */
+    double s_tol = L->ftol * 1.001 + 2.0 * L->e_edge / largest;
+    double q_lo = largest * (1.0 - s_tol) * (1.0 - 1e-9) / db->size_quantum - 1.0;
+    double q_hi = largest * (1.0 + s_tol) * (1.0 + 1e-9) / db->size_quantum;
     long hits[512];
     int n_hit = 0, more = 0;
     for (int i = 0; i < n_probe && !more; i++) {
@@ -760,6 +793,8 @@ static int pattern_candidates(Lis *L, const Db *db, long owner, const double *e6
         uint16_t lo = los[i];
         for (long r = a; r < e; r++) row += db->key_lo[r] < lo;
         for (; row < e && db->key_lo[row] == lo; row++) {
+            double q = (double)db->size_q[row];
+            if (q < q_lo || (q > q_hi && q < 65535.0)) continue;
             if (n_hit == 512) { more = 1; break; }
             hits[n_hit++] = row;
             __builtin_prefetch((const char *)db->pstars + (db->pstars16 ? 8 : 16) * row);
@@ -779,17 +814,11 @@ static int pattern_candidates(Lis *L, const Db *db, long owner, const double *e6
             uint32_t ps[4];
             pattern_row(db, row, ps);
             /* the largest edge first (one acos): most chance hits fail the size test */
-            double dots[6], dmin = INFINITY;
-            int emin = 0;
-            for (int e = 0; e < 6; e++) {
-                const float *a = db->u32 + 3 * ps[PAIR_A[e]], *b = db->u32 + 3 * ps[PAIR_B[e]];
-                dots[e] = (double)a[0] * (double)b[0] + (double)a[1] * (double)b[1]
-                          + (double)a[2] * (double)b[2];
-                if (clip1(dots[e]) < dmin) { dmin = clip1(dots[e]); emin = e; }
-            }
-            double clargest = acos(dmin);
+            double dots[6];
+            int emin;
+            double clargest = largest_edge(db->u32, ps, dots, &emin);
             double scale = clargest / largest;
-            if (!(fabs(scale - 1.0) <= L->ftol * 1.001 + 2.0 * L->e_edge / largest)) continue;
+            if (!(fabs(scale - 1.0) <= s_tol)) continue;
             double ce[6];
             for (int e = 0; e < 6; e++) ce[e] = e == emin ? clargest : acos(clip1(dots[e]));
             double cs[6];
@@ -900,7 +929,7 @@ static int scatter_rows(const int64_t *img, const int64_t *cat, long k, const Py
     return 1;
 }
 
-#define NBUF 8                  /* the database arrays of a search */
+#define NBUF 9                  /* the database arrays of a search */
 
 static void release_all(Py_buffer *b, int n)
 {
@@ -952,8 +981,9 @@ static void lis_free(Lis *L)
     pred_free(&L->pred);
 }
 
-static void db_from(Db *db, Py_buffer *b, const int64_t *I)
+static void db_from(Db *db, Py_buffer *b, const int64_t *I, const double *D)
 {
+    db->size_q = b[8].buf; db->size_quantum = D[15];
     db->u64 = b[0].buf; db->u32 = b[1].buf; db->pstars = b[2].buf; db->key_lo = b[3].buf;
     db->pstars16 = b[2].len == (Py_ssize_t)(8 * I[5]);     /* else uint32 (db_prepare checked) */
     db->key_hi_start = b[4].buf; db->cell_start = b[5].buf; db->cell_index = b[6].buf;
@@ -988,24 +1018,25 @@ static PyObject *lis_result(int status, Lis *L, Py_buffer *oc, const Py_buffer *
 }
 
 /* lis_solve(t, u0, t_more, combos, ends, u64, u32, pstars, key_lo, key_hi_start, cell_start,
- *           cell_index, cell_u, iparams, dparams, out_C, usable, hip_db, out_star, out_hip)
+ *           cell_index, cell_u, size_q, iparams, dparams, out_C, usable, hip_db, out_star,
+ *           out_hip)
  * t_more (n_more, 2): the usable detections beyond the n searched (fainter; only a nearer
  * one of them unnames a pair, unused_nearer)
  * iparams (int64): k, grid_n, key_bits, lo_bits, bins, db_n_patterns, min_matches,
  *                  max_candidates, fit, fit_radial
  * dparams (float64): e_edge, max_edge, min_edge, model_tol, ftol, error_rad, half_diag,
- *                    gate_fine, area0, p_false_max, max_time_s, bounds[4]
+ *                    gate_fine, area0, p_false_max, max_time_s, bounds[4], size_quantum
  * returns (status, n_match, n_verified, n_patterns, s, k1, p_false, rms_arcsec) */
 static PyObject *py_lis_solve(PyObject *self, PyObject *args)
 {
     Py_buffer bt, bu0, bmore, bco, ben, b[NBUF], ip, dp, oc, bus, bh, ostar, ohip;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*w*y*y*w*w*", &bt, &bu0, &bmore, &bco,
-                          &ben, &b[0], &b[1], &b[2], &b[3], &b[4], &b[5], &b[6], &b[7], &ip, &dp,
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*w*y*y*w*w*", &bt, &bu0, &bmore, &bco,
+                          &ben, &b[0], &b[1], &b[2], &b[3], &b[4], &b[5], &b[6], &b[7], &b[8], &ip, &dp,
                           &oc, &bus, &bh, &ostar, &ohip))
         return NULL;
     const int64_t *I = ip.buf;
     Db db;
-    db_from(&db, b, I);
+    db_from(&db, b, I, dp.buf);
     Lis L;
     int status;
     Py_BEGIN_ALLOW_THREADS
@@ -1051,7 +1082,7 @@ static void unit_rows_of(const double *t, long n, double s, double k1, double *u
     }
 }
 
-/* lis_pinhole(xy, cam, combos, ends, <the 8 database arrays>, iparams, dparams, out_C,
+/* lis_pinhole(xy, cam, combos, ends, <the 9 database arrays>, iparams, dparams, out_C,
  *             out_u, hip_db, out_star, out_hip): lis_solve from pixel centroids of a
  * camera without distortion, cam = (x0_px, y0_px, pixel_mm, f_mm) (float64), in one call:
  * out_u (N, 3) gets the stars' unit vectors (at the solved focal scale and radial term
@@ -1060,14 +1091,14 @@ static void unit_rows_of(const double *t, long n, double s, double k1, double *u
 static PyObject *py_lis_pinhole(PyObject *self, PyObject *args)
 {
     Py_buffer bx, bcam, bco, ben, b[NBUF], ip, dp, oc, ou, bh, ostar, ohip;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*y*y*y*y*y*w*w*y*w*w*", &bx, &bcam, &bco, &ben,
-                          &b[0], &b[1], &b[2], &b[3], &b[4], &b[5], &b[6], &b[7], &ip, &dp,
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*y*y*y*y*y*y*w*w*y*w*w*", &bx, &bcam, &bco, &ben,
+                          &b[0], &b[1], &b[2], &b[3], &b[4], &b[5], &b[6], &b[7], &b[8], &ip, &dp,
                           &oc, &ou, &bh, &ostar, &ohip))
         return NULL;
     const int64_t *I = ip.buf;
     long n = (long)(bx.len / (2 * sizeof(double))), m = (long)I[10];
     Db db;
-    db_from(&db, b, I);
+    db_from(&db, b, I, dp.buf);
     Lis L;
     memset(&L, 0, sizeof L);
     int status = -1, finite = 0;
@@ -1708,8 +1739,9 @@ static PyObject *py_scatter(PyObject *self, PyObject *args)
 static int db_check_gather(const void *pstars, int p16, long P, const uint16_t *key_lo,
                            const int32_t *khs, long n_seg, const int32_t *cs, long n_cells,
                            const uint32_t *ci, long M, const double *u64, const float *u32,
-                           long S, double *cell_u, int gather)
+                           long S, double *cell_u, uint16_t *size_q, double quantum, int gather)
 {
+    if (!(quantum > 0.0)) return 1;
     if (khs[0] != 0 || khs[n_seg] != P || cs[0] != 0 || cs[n_cells] != M) return 1;
     int bad = 0;
     for (long h = 0; h < n_seg; h++) bad |= khs[h + 1] < khs[h];
@@ -1738,13 +1770,28 @@ static int db_check_gather(const void *pstars, int p16, long P, const uint16_t *
         at_starts += r > 0 && r < khs[h + 1] && key_lo[r] < key_lo[r - 1];
     }
     if (descents != at_starts) return 2;
+    Db db;
+    memset(&db, 0, sizeof db);
+    db.pstars = pstars;
+    db.pstars16 = p16;
+    double dots[6];
+    int emin;
+    uint32_t ps[4];
     if (gather) {
         for (long q = 0; q < M; q++) {
             const double *u = u64 + 3 * (long)ci[q];
             double *o = cell_u + 3 * q;
             o[0] = u[0]; o[1] = u[1]; o[2] = u[2];
         }
+        for (long r = 0; r < P; r++) {
+            pattern_row(&db, r, ps);
+            size_q[r] = size_step(largest_edge(u32, ps, dots, &emin), quantum);
+        }
         return 0;
+    }
+    for (long r = 0; r < P; r = r + 61 < P || r == P - 1 ? r + 61 : P - 1) {
+        pattern_row(&db, r, ps);
+        if (size_q[r] != size_step(largest_edge(u32, ps, dots, &emin), quantum)) return 3;
     }
     /* stored (memory-mapped) vectors: a sample of rows, and the last, as made here (a
      * misplaced or foreign array is refused; they index nothing, so a changed value
@@ -1766,21 +1813,25 @@ static int db_check_gather(const void *pstars, int p16, long P, const uint16_t *
 
 /* db_prepare(pstars (P, 4) uint16 or uint32, key_lo (P,) uint16, key_hi_start (H + 1,)
  * int32, cell_start (C + 1,) int32, cell_index (M,) uint32, u64 (S, 3) float64,
- * cell_u (M, 3) float64, u32 (S, 3) float32, gather) -> 0 consistent (gather: cell_u =
- * u64[cell_index] written; else the stored cell_u and u64 checked on a sample), 1
+ * cell_u (M, 3) float64, u32 (S, 3) float32, size_q (P,) uint16, size_quantum, gather)
+ * -> 0 consistent (gather: cell_u = u64[cell_index] and each pattern's size step
+ * written; else the stored cell_u, size_q and u64 checked on a sample), 1
  * offsets or star rows out of range, 2 a key bucket not sorted by key_lo, 3 stored
  * vectors not those of the stars (see db_check_gather); the sizes are checked here, the
  * dtypes by the caller (_kernels.py) */
 static PyObject *py_db_prepare(PyObject *self, PyObject *args)
 {
-    Py_buffer bp, bk, bh, bs, bi, bu, bo, bf;
+    Py_buffer bp, bk, bh, bs, bi, bu, bo, bf, bz;
+    double quantum;
     int gather;
-    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*p", &bp, &bk, &bh, &bs, &bi, &bu, &bo, &bf, &gather))
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*dp", &bp, &bk, &bh, &bs, &bi, &bu, &bo, &bf, &bz,
+                          &quantum, &gather))
         return NULL;
-    if (gather && bo.readonly) {
+    if (gather && (bo.readonly || bz.readonly)) {
         PyBuffer_Release(&bp); PyBuffer_Release(&bk); PyBuffer_Release(&bh); PyBuffer_Release(&bs);
         PyBuffer_Release(&bi); PyBuffer_Release(&bu); PyBuffer_Release(&bo); PyBuffer_Release(&bf);
-        PyErr_SetString(PyExc_ValueError, "db_prepare: cell_u must be writable to be made");
+        PyBuffer_Release(&bz);
+        PyErr_SetString(PyExc_ValueError, "db_prepare: cell_u and size_q must be writable to be made");
         return NULL;
     }
     long P = (long)(bk.len / sizeof(uint16_t)), n_seg = (long)(bh.len / sizeof(int32_t)) - 1;
@@ -1789,14 +1840,16 @@ static PyObject *py_db_prepare(PyObject *self, PyObject *args)
     int p16 = bp.len == (Py_ssize_t)(8 * P), rc = 1;
     if (n_seg >= 0 && n_cells >= 0 && (p16 || bp.len == (Py_ssize_t)(16 * P))
             && bo.len == (Py_ssize_t)(3 * sizeof(double) * M)
-            && bf.len == (Py_ssize_t)(3 * sizeof(float) * S)) {
+            && bf.len == (Py_ssize_t)(3 * sizeof(float) * S)
+            && bz.len == (Py_ssize_t)(sizeof(uint16_t) * P)) {
         Py_BEGIN_ALLOW_THREADS
         rc = db_check_gather(bp.buf, p16, P, bk.buf, bh.buf, n_seg, bs.buf, n_cells, bi.buf, M,
-                             bu.buf, bf.buf, S, (double *)bo.buf, gather);
+                             bu.buf, bf.buf, S, (double *)bo.buf, (uint16_t *)bz.buf, quantum, gather);
         Py_END_ALLOW_THREADS
     }
     PyBuffer_Release(&bp); PyBuffer_Release(&bk); PyBuffer_Release(&bh); PyBuffer_Release(&bs);
     PyBuffer_Release(&bi); PyBuffer_Release(&bu); PyBuffer_Release(&bo); PyBuffer_Release(&bf);
+    PyBuffer_Release(&bz);
     return PyLong_FromLong(rc);
 }
 

@@ -373,11 +373,12 @@ _ARRAYS = ("hip", "u_icrs", "mag", "pattern_stars", "key_lo", "key_hi_start", "c
            "cell_index")
 _MEMO: dict[str, StarDatabase] = {}
 #: arrays the compiled kernels read that derive from the stored ones: the float64 unit
-#: vectors and the star vectors of every sky-grid cell in cell order (14 MB for the
-#: deepest band).  Written after the stored arrays and memory-mapped, so that a process
-#: does not make them again (:class:`._kernels._DbBuffers`); a file without them (written
-#: before they were) is completed once when read.  Readers that do not know them skip them.
-_KERNEL_ARRAYS = ("u64", "cell_u")
+#: vectors, the star vectors of every sky-grid cell in cell order (14 MB for the
+#: deepest band) and each pattern's largest edge in uint16 steps.  Written after the
+#: stored arrays and memory-mapped, so that a process does not make them again
+#: (:class:`._kernels._DbBuffers`); a file without them all (written before they were)
+#: is completed once when read.  Readers that do not know them skip them.
+_KERNEL_ARRAYS = ("u64", "cell_u", "size_q")
 _KERNEL: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 #: cache file layout (independent of DATABASE_VERSION, the pattern rules): a JSON header
 #: then the raw arrays, 64-byte aligned, read by memory-mapping (no copy, no zip)
@@ -465,13 +466,18 @@ def _read(path, params: DatabaseParams, catalog_key: str) -> StarDatabase | None
                           catalog_digest=str(head["catalog_digest"]))
         kern = head.get("kernel_arrays")
         if kern:
-            shapes = {"u64": (db.n_stars, 3), "cell_u": (db.cell_index.shape[0], 3)}
+            expect = {"u64": (np.float64, (db.n_stars, 3)),
+                      "cell_u": (np.float64, (db.cell_index.shape[0], 3)),
+                      "size_q": (np.uint16, (db.n_patterns,))}
             got = []
             for name in _KERNEL_ARRAYS:
-                dtype, shape, offset = kern[name]
-                if np.dtype(dtype) != np.float64 or tuple(shape) != shapes[name]:
+                if name not in kern:
                     break
-                got.append(np.frombuffer(buf, dtype=np.float64, count=3 * shape[0],
+                dtype, shape, offset = kern[name]
+                want_dtype, want_shape = expect[name]
+                if np.dtype(dtype) != want_dtype or tuple(shape) != want_shape:
+                    break
+                got.append(np.frombuffer(buf, dtype=want_dtype, count=int(np.prod(shape)),
                                          offset=start + offset).reshape(shape))
             else:
                 _KERNEL[db] = tuple(got)
@@ -481,8 +487,9 @@ def _read(path, params: DatabaseParams, catalog_key: str) -> StarDatabase | None
 
 
 def kernel_arrays(db):
-    """``(u64 (S, 3), cell_u (M, 3))``, float64 read only, stored with a database read
-    from the cache (see :data:`_KERNEL_ARRAYS`); None for any other database."""
+    """``(u64 (S, 3) float64, cell_u (M, 3) float64, size_q (P,) uint16)``, read only,
+    stored with a database read from the cache (see :data:`_KERNEL_ARRAYS`); None for any
+    other database."""
     return _KERNEL.get(db)
 
 

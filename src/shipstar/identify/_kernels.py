@@ -27,10 +27,20 @@ _STAR_ROWS = (np.dtype(np.uint16), np.dtype(np.uint32))
 
 #: scalar parameters travel as packed native int64 / float64 buffers
 _pack_i11 = struct.Struct("=11q").pack
-_pack_d15 = struct.Struct("=15d").pack
+_pack_d16 = struct.Struct("=16d").pack
 _pack_i4 = struct.Struct("=4q").pack
 _pack_d9 = struct.Struct("=9d").pack
 _pack_d4 = struct.Struct("=4d").pack
+
+#: a pattern's largest edge is stored in steps of pattern_fov_rad / SIZE_STEPS (uint16:
+#: 65535 steps hold edges up to 1.09 pattern_fov_rad; 0.5" steps for an 8.6 deg field)
+SIZE_STEPS = 60000
+
+
+def size_quantum_rad(params) -> float:
+    """The step (rad) of the stored largest edges of a database with ``params``."""
+    return float(params.pattern_fov_rad) / SIZE_STEPS
+
 
 _BUFFERS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 #: ``[database, buffers]`` of the database used last (a session uses one or two)
@@ -41,13 +51,13 @@ class _DbBuffers:
     """A database's arrays as the kernels read them."""
 
     __slots__ = ("u64", "u32", "pstars", "key_lo", "key_hi_start", "cell_start", "cell_index",
-                 "cell_u", "hip",
+                 "cell_u", "size_q", "size_quantum_rad", "hip",
                  "grid_n", "key_bits", "lo_bits", "bins", "n_patterns")
 
     def __init__(self, db):
         from shipstar.identify._database import kernel_arrays
 
-        stored = kernel_arrays(db)     # (u64, cell_u) mapped from the cache file, or None
+        stored = kernel_arrays(db)     # (u64, cell_u, size_q) mapped from the cache file, or None
         self.u64 = np.ascontiguousarray(unit_f64(db) if stored is None else stored[0],
                                         dtype=np.float64)
         self.u32 = np.ascontiguousarray(db.u_icrs, dtype=np.float32)
@@ -68,13 +78,19 @@ class _DbBuffers:
         # star row < n_stars, each key bucket sorted by key_lo (the compiled look-up reads
         # it so; the patterns are sorted by their whole key when the database is built),
         # then the star vectors of every cell in cell order (a prediction reads them in
-        # sequence): cell_u = u64[cell_index], made here or, stored, checked on a sample
-        # of rows (and the stored u64 against u_icrs)
+        # sequence): cell_u = u64[cell_index], and each pattern's largest edge in steps of
+        # size_quantum_rad (the look-up's first test, before it reads the pattern's stars),
+        # made here or, stored, checked on a sample of rows (and the stored u64 against
+        # u_icrs)
         m = self.cell_index.shape[0]
-        made = stored is None or stored[1].shape != (m, 3)
+        self.size_quantum_rad = size_quantum_rad(db.params)
+        made = stored is None or stored[1].shape != (m, 3) or stored[2].shape != (db.n_patterns,)
         self.cell_u = np.empty((m, 3)) if made else np.ascontiguousarray(stored[1], dtype=np.float64)
+        self.size_q = (np.empty(db.n_patterns, dtype=np.uint16) if made
+                       else np.ascontiguousarray(stored[2], dtype=np.uint16))
         rc = _ckernels.db_prepare(self.pstars, self.key_lo, self.key_hi_start, self.cell_start,
-                                  self.cell_index, self.u64, self.cell_u, self.u32, int(made))
+                                  self.cell_index, self.u64, self.cell_u, self.u32, self.size_q,
+                                  self.size_quantum_rad, int(made))
         if rc == 2:
             raise ValueError("star database patterns are not sorted by key")
         if rc != 0:
@@ -136,8 +152,8 @@ def lis_params(b: "_DbBuffers", k: int, m: int, params):
     ip = _pack_i11(k, b.grid_n, b.key_bits, b.lo_bits, b.bins, b.n_patterns, min_matches,
                    max_candidates, int(fit), int(fit_radial), m)
     y0, y1, z0, z1 = bounds
-    dp = _pack_d15(e_edge, max_edge, min_edge, model_tol, ftol, error_rad, half_diag, gate_fine,
-                   area0, p_false_max, max_time_s, y0, y1, z0, z1)
+    dp = _pack_d16(e_edge, max_edge, min_edge, model_tol, ftol, error_rad, half_diag, gate_fine,
+                   area0, p_false_max, max_time_s, y0, y1, z0, z1, b.size_quantum_rad)
     return ip, dp
 
 
@@ -168,7 +184,7 @@ def lis_solve(t, u0, k: int, combos, ends, db, params, *, n_field: int, usable, 
     hip = np.empty(n_field, dtype=np.int64)
     status, m, n_verified, n_patterns, s, k1, p_false, rms = _ckernels.lis_solve(
         t, u0, t_more, combos, ends, b.u64, b.u32, b.pstars, b.key_lo, b.key_hi_start, b.cell_start,
-        b.cell_index, b.cell_u, ip, dp, C, _usable(usable), b.hip, star, hip)
+        b.cell_index, b.cell_u, b.size_q, ip, dp, C, _usable(usable), b.hip, star, hip)
     return status, C, star, hip, m, n_verified, n_patterns, s, k1, p_false, rms
 
 
@@ -191,7 +207,7 @@ def lis_pinhole(xy, cam, m: int, k: int, combos, ends, db, params):
     hip = np.empty(n, dtype=np.int64)
     out = _ckernels.lis_pinhole(
         xy, _pack_d4(*cam), combos, ends, b.u64, b.u32, b.pstars, b.key_lo, b.key_hi_start,
-        b.cell_start, b.cell_index, b.cell_u, ip, dp, C, u, b.hip, star, hip)
+        b.cell_start, b.cell_index, b.cell_u, b.size_q, ip, dp, C, u, b.hip, star, hip)
     if out is None:
         return None
     status, n_match, n_verified, n_patterns, s, k1, p_false, rms = out
