@@ -15,8 +15,8 @@ import numpy as np
 from shipstar.identify import _ckernels
 from shipstar.identify._verify import unit_f64
 
-__all__ = ["db_buffers", "lis_solve", "lis_pinhole", "track_solve", "track_pinhole", "pack_track_params", "pack_camera", "wahba",
-           "pinhole_unproject", "unit_rows"]
+__all__ = ["db_buffers", "lis_solve", "lis_pinhole", "track_solve", "track_pinhole", "pack_track_params",
+           "pack_camera", "wahba", "pinhole_unproject", "unit_rows", "size_quantum_rad", "SIZE_STEPS"]
 
 _NO_ROWS = np.empty(0, dtype=np.int64)
 _NO_MORE = np.empty((0, 2))
