@@ -1789,7 +1789,11 @@ static int db_check_gather(const void *pstars, int p16, long P, const uint16_t *
         }
         return 0;
     }
-    for (long r = 0; r < P; r = r + 61 < P || r == P - 1 ? r + 61 : P - 1) {
+    /* the stored size steps: 2048 rows spread over the array, and the last (each costs
+     * random reads of its stars; a misplaced or foreign array is refused all the same,
+     * and a changed step elsewhere can only drop a match, never make a wrong one) */
+    long step = P / 2048 + 1;
+    for (long r = 0; r < P; r = r + step < P || r == P - 1 ? r + step : P - 1) {
         pattern_row(&db, r, ps);
         if (size_q[r] != size_step(largest_edge(u32, ps, dots, &emin), quantum)) return 3;
     }
