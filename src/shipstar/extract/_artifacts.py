@@ -134,9 +134,15 @@ class PersistentPixels:
         oldest = self._frame - self.n_frames
         if token is not None and displacement_px is not None and self._tokens:
             pair_star, pair_frame = [], []
+            get = self._pixels.get
             for k, (i, j) in enumerate(ij):
-                frames = {f for di in (-1, 0, 1) for dj in (-1, 0, 1)
-                          for f in self._pixels.get((i + di, j + dj), ()) if f > oldest}
+                # the 3 x 3 pixels' lists (at sea most are empty: no set is built for them)
+                near = [v for v in (get((i - 1, j - 1)), get((i - 1, j)), get((i - 1, j + 1)),
+                                    get((i, j - 1)), get((i, j)), get((i, j + 1)),
+                                    get((i + 1, j - 1)), get((i + 1, j)), get((i + 1, j + 1))) if v]
+                if not near:
+                    continue
+                frames = {f for v in near for f in v if f > oldest}
                 if len(frames) >= self.min_count:
                     pair_star += [k] * len(frames)
                     pair_frame += frames
