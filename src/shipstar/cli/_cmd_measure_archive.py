@@ -103,6 +103,9 @@ def register(subparsers) -> argparse.ArgumentParser:
                    help="a running Dask scheduler (tcp://HOST:PORT); default: a LocalCluster on this machine")
     d.add_argument("--workers", type=int_in_range(1, 256), default=None, metavar="N",
                    help="LocalCluster worker processes, one thread each (default: the cores)")
+    d.add_argument("--no-pin-workers", action="store_true",
+                   help="leave the LocalCluster's workers free to move between cores (default: "
+                        "worker i on core i, when there are at least as many cores)")
     d.add_argument("--retries", type=int_in_range(0, 100), default=2, metavar="N",
                    help="retries of a task that raised (default 2)")
     d.add_argument("--retry-delay-s", type=float_in_range(0.0, 3600.0), default=1.0, metavar="S",
@@ -352,7 +355,8 @@ def run(args) -> int:
             method = local_start_method()
             if method == "fork":
                 warm_here(cameras)
-            client, cluster = connect(None, workers=n_workers, start_method=method)
+            client, cluster = connect(None, workers=n_workers, start_method=method,
+                                      pin_workers=not args.no_pin_workers)
             timing["connect_s"] = time.perf_counter() - t0
             warming = warm_workers(client, cameras)
         with StopOnSignals() as stop:

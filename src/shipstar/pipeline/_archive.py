@@ -26,6 +26,7 @@ to continue later), never a complete-looking file with rows missing.
 from __future__ import annotations
 
 import math
+import os
 import threading
 import time
 import uuid
@@ -555,11 +556,13 @@ def warm_here(cameras) -> None:
 
 
 def connect(scheduler: str | None = None, *, workers: int = 2, threads_per_worker: int = 1,
-            timeout_s: float = 10.0, start_method: str | None = None):
+            timeout_s: float = 10.0, start_method: str | None = None, pin_workers: bool = True):
     """A Dask client: to ``scheduler`` (``tcp://HOST:PORT``), else to a new LocalCluster of
     ``workers`` processes, started by ``start_method`` (default
-    :func:`local_start_method`; restarted workers are always spawned).  Returns
-    ``(client, cluster or None)``; close both after use.
+    :func:`local_start_method`; restarted workers are always spawned).  ``pin_workers``:
+    with at least as many cores as workers, worker ``i`` runs on core ``i`` only
+    (:class:`._pin.PinToCore`).  Returns ``(client, cluster or None)``; close both after
+    use.
 
     Raises
     ------
@@ -598,4 +601,19 @@ def connect(scheduler: str | None = None, *, workers: int = 2, threads_per_worke
     finally:
         if main:        # None: a handler not set from Python, which cannot be put back
             signal.signal(signal.SIGINT, signal.SIG_DFL if old is None else old)
-    return Client(cluster, set_as_default=False), cluster
+    client = Client(cluster, set_as_default=False)
+    cores = _cores()
+    if pin_workers and cores and int(workers) <= len(cores):
+        from shipstar.pipeline._pin import PinToCore
+
+        client.register_plugin(PinToCore(cores), name="shipstar-pin-to-core")
+    return client, cluster
+
+
+def _cores() -> list:
+    """The CPUs this process may run on (sorted), or [] where the OS cannot say."""
+    try:
+        return sorted(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return []
+
