@@ -33,7 +33,10 @@ _pack_d9 = struct.Struct("=9d").pack
 _pack_d4 = struct.Struct("=4d").pack
 
 #: a pattern's largest edge is stored in steps of pattern_fov_rad / SIZE_STEPS (uint16:
-#: 65535 steps hold edges up to 1.09 pattern_fov_rad; 0.5" steps for an 8.6 deg field)
+#: 65535 steps hold edges up to 1.09 pattern_fov_rad; 0.5" steps for an 8.6 deg field).
+#: The steps are kept in the database cache files (``_database._KERNEL_ARRAYS``) and
+#: checked on load against this value: changing it needs ``_database._FILE_FORMAT``
+#: raised, or every cached database would be refused as inconsistent.
 SIZE_STEPS = 60000
 
 
