@@ -309,6 +309,78 @@ def test_sigterm_stops_cleanly_leaving_the_finished_rows(root, cluster):
     assert out.with_name("stopped.csv.resume").exists() and not out.exists()
 
 
+def _index(frames):
+    return [(f.label, f.utc_jd1, f.utc_jd2, f.time_source, f.exposure_s, f.sensor) for f in frames]
+
+
+class _Seen:
+    """A header check that takes many frames at once and records which it was given."""
+
+    def __init__(self):
+        self.names = []
+
+    def __call__(self, info):                            # pragma: no cover - check_many is used
+        self.names.append(info.name)
+
+    def check_many(self, infos):
+        self.names.extend(i.name for i in infos)
+
+
+def test_the_index_read_by_the_workers_is_the_one_read_here(root, cluster, tmp_path):
+    """Frame headers read on the cluster in blocks give the same frames, and a bad frame
+    the same error after the same frames were checked, as reading them here."""
+    import shutil
+
+    from shipstar.errors import ShipstarError
+    from shipstar.pipeline._archive import HeaderReader
+    from shipstar.pipeline._frames import frame_paths, scan_frames
+
+    _, client = cluster
+    reader = HeaderReader(client, block_files=6)         # 20 frames: blocks of 6, 6, 6 and 2
+    d = root / "sea" / "A2"
+    here, seen_here = _Seen(), _Seen()
+    there = scan_frames(d, check=here, headers=reader(frame_paths(d), "start"))
+    assert _index(there) == _index(scan_frames(d, check=seen_here)) and len(there) == 20
+    assert here.names == seen_here.names == [f.label for f in there]
+    # a frame in the third block that is not a FITS file
+    bad = tmp_path / "A2"
+    shutil.copytree(d, bad)
+    (bad / "A2_00013.fits").write_bytes(b"not a FITS file" * 400)
+    errors, checked = [], []
+    for headers in (None, reader(frame_paths(bad), "start")):
+        seen = _Seen()
+        with pytest.raises(ShipstarError) as exc:
+            scan_frames(bad, check=seen, headers=headers)
+        errors.append(str(exc.value))
+        checked.append(seen.names)
+    assert errors[0] == errors[1] and "A2_00013.fits" in errors[0]
+    assert checked[0] == checked[1] == [f"A2_{k:05d}.fits" for k in range(13)]
+    # headers of another listing are refused, not paired with the wrong files
+    with pytest.raises(ShipstarError, match="changed while they were indexed"):
+        scan_frames(d, headers=reader(frame_paths(root / "sea" / "A1"), "start"))
+
+
+def test_the_command_has_its_workers_read_the_index(root, cluster, monkeypatch, capsys):
+    """``measure-archive``'s index in blocks on the cluster's workers (blocks of 5 files
+    here): the rows of serial measure, and the blocks ran as tasks."""
+    from distributed import get_task_stream
+
+    import shipstar.pipeline._archive as archive
+    from shipstar.cli import main
+
+    lc, client = cluster
+    monkeypatch.setattr(archive, "INDEX_BLOCK_MIN_FILES", 5)
+    monkeypatch.chdir(root)
+    with get_task_stream(client) as ts:
+        code = main(["measure-archive", *SEA, *CHUNK, "--scheduler", lc.scheduler_address, "--out",
+                     "out/indexed.csv", "--json"])
+    capsys.readouterr()
+    assert code == 0
+    assert (root / "out" / "indexed.csv").read_text() == _reference(root)
+    blocks = [t for t in ts.data if t["key"].startswith("shipstar-index-")]
+    assert len(blocks) == 8                              # 20 frames of each sensor in blocks of 5
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

@@ -257,20 +257,33 @@ def _first_frame_time(directory, date_obs_is: str) -> tuple:
     return read_fits_header(d / names[0], date_obs_is=date_obs_is).mid_utc_jd()
 
 
-def _sources(args, configs, track=None, weather=None) -> list:
+def _sources(args, configs, track=None, weather=None, header_reader=None) -> list:
     """Each sensor's indexed FITS frames (headers only), each header cross-checked
-    (SENSOR/INSTRUME, image size, SITELAT/SITELONG, PRESSURE/TEMPERAT; ``args.header_checks``)."""
+    (SENSOR/INSTRUME, image size, SITELAT/SITELONG, PRESSURE/TEMPERAT; ``args.header_checks``).
+
+    ``header_reader(paths, date_obs_is)``, optional, starts reading the headers of
+    ``paths`` elsewhere and returns their blocks (``scan_frames``' ``headers``): every
+    sensor's are started before the first is taken (``measure-archive``: on the cluster)."""
     from shipstar.cli._header_checks import header_check
+    from shipstar.pipeline._frames import frame_paths
     from shipstar.pipeline._sources import FitsDirectorySource
 
+    headers = [None] * len(configs)
+    if header_reader is not None:
+        for k, (_, directory) in enumerate(args.sensor):
+            try:
+                headers[k] = header_reader(frame_paths(directory), args.date_obs_is)
+            except ShipstarError:
+                pass                                    # raised below, in the sensors' order
     sources, args.header_checks = [], []
-    for config, (name, directory) in zip(configs, args.sensor):
+    for config, (name, directory), given in zip(configs, args.sensor, headers):
         check = header_check(args, names=(name, config.camera.name), camera=config.camera, track=track,
                              weather=weather, given_name=f"--sensor {name}={directory} (camera {config.camera.name})",
                              position_flags=not getattr(args, "track", None),
                              weather_flags=not getattr(args, "weather", None), sensor=name)
         args.header_checks.append(check)
-        sources.append(FitsDirectorySource(name, directory, date_obs_is=args.date_obs_is, check=check))
+        sources.append(FitsDirectorySource(name, directory, date_obs_is=args.date_obs_is, check=check,
+                                           headers=given))
     return sources
 
 

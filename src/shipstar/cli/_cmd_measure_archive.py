@@ -212,9 +212,10 @@ def _plan_output(session) -> None:
         session.resume = True
 
 
-def _prepare(session) -> None:
-    """As ``shipstar measure`` does before processing: the job, the frames' index, the
-    coverage and swap checks, and the CSV's comment lines."""
+def _prepare(session, header_reader=None) -> None:
+    """As ``shipstar measure`` does before processing: the job, the frames' index (its
+    headers read by ``header_reader``, :class:`~shipstar.pipeline._archive.HeaderReader`:
+    on the cluster), the coverage and swap checks, and the CSV's comment lines."""
     from shipstar.cli._cmd_measure import _check_covered, _csv_comments, _eop, _job, _override_comments, \
         _site_and_weather, _sources
     from pathlib import Path
@@ -228,7 +229,7 @@ def _prepare(session) -> None:
     track, weather = _site_and_weather(a)
     session.truth = TruthTable.read_csv(a.truth) if a.truth else None
     session.job = _job(a, track, weather)
-    session.sources = _sources(a, session.job.configs, track, weather)
+    session.sources = _sources(a, session.job.configs, track, weather, header_reader=header_reader)
     for src in session.sources:                     # the workers may run in another directory
         src.directory = str(Path(src.directory).resolve())
     _check_covered(session.sources, track, weather)
@@ -321,7 +322,8 @@ def run(args) -> int:
     import dask
 
     from shipstar.cli._cmd_measure import _configs
-    from shipstar.pipeline._archive import QUIET_DASK, connect, local_start_method, warm_here, warm_workers
+    from shipstar.pipeline._archive import QUIET_DASK, HeaderReader, connect, local_start_method, warm_here, \
+        warm_workers
     from shipstar.pipeline._measure import default_workers
     from shipstar.pipeline._progress import ProgressBar
 
@@ -339,26 +341,24 @@ def run(args) -> int:
     try:
         todo = [s for s in sessions if not s.skipped]
         cameras = [c.camera for c in _configs(todo[0].args)] if todo else []
-        # a scheduler's workers load the catalog and star databases while the frames are
-        # indexed here; a LocalCluster starts after the indexing, its workers forked from
-        # this process with them already loaded (the swap check loads them here anyway)
-        if todo and args.scheduler:
+        # the cluster first: its workers read the frames' headers (the index) side by side;
+        # a scheduler's workers load the catalog and star databases meanwhile, a
+        # LocalCluster's are forked from this process with them already loaded
+        if todo:
             t0 = time.perf_counter()
-            client, cluster = connect(args.scheduler, timeout_s=args.connect_timeout_s)
+            if args.scheduler:
+                client, cluster = connect(args.scheduler, timeout_s=args.connect_timeout_s)
+            else:
+                method = local_start_method()
+                if method == "fork":
+                    warm_here(cameras)
+                client, cluster = connect(None, workers=n_workers, start_method=method,
+                                          pin_workers=not args.no_pin_workers)
             timing["connect_s"] = time.perf_counter() - t0
             warming = warm_workers(client, cameras)
         for s in todo:
-            _prepare(s)
+            _prepare(s, HeaderReader(client, retries=args.retries))
             print_overrides("measure-archive", s.overrides)
-        if todo and not args.scheduler and any(s.job is not None and not s.swapped for s in todo):
-            t0 = time.perf_counter()
-            method = local_start_method()
-            if method == "fork":
-                warm_here(cameras)
-            client, cluster = connect(None, workers=n_workers, start_method=method,
-                                      pin_workers=not args.no_pin_workers)
-            timing["connect_s"] = time.perf_counter() - t0
-            warming = warm_workers(client, cameras)
         with StopOnSignals() as stop:
             if any(s.job is not None and not s.swapped for s in sessions):
                 t1 = time.perf_counter()

@@ -19,7 +19,8 @@ from shipstar._fitsio import FITS_SUFFIXES
 from shipstar.errors import ShipstarError
 from shipstar.units import DAY_S
 
-__all__ = ["Frame", "scan_frames", "read_fits_frame", "check_sensor_name", "time_sources", "FITS_SUFFIXES"]
+__all__ = ["Frame", "scan_frames", "frame_paths", "read_header_block", "read_fits_frame", "check_sensor_name",
+           "time_sources", "FITS_SUFFIXES"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -126,7 +127,43 @@ def check_sensor_name(frames, name: str, camera_name: str, where) -> None:
                             f"not {name!r}")
 
 
-def scan_frames(directory, *, date_obs_is: str = "start", check=None) -> list[Frame]:
+def frame_paths(directory) -> list:
+    """The FITS frames of a directory (``*.fits`` / ``*.fit`` / ``*.fts``, optionally
+    gzipped; hidden files left out), in file-name order, as paths.
+
+    Raises
+    ------
+    ShipstarError
+        Not a directory, or no FITS files in it.
+    """
+    from shipstar._fitsio import is_fits_name
+
+    d = Path(directory)
+    if not d.is_dir():
+        raise ShipstarError(f"frames directory {d} does not exist or is not a directory")
+    paths = sorted(p for p in d.iterdir() if is_fits_name(p.name))
+    if not paths:
+        raise ShipstarError(f"no FITS frames (*.fits, *.fit, *.fts, optionally .gz) in {d}")
+    return paths
+
+
+def read_header_block(paths, date_obs_is: str = "start") -> tuple:
+    """``(infos, error)``: the headers of ``paths`` (:class:`~shipstar._fitsio.FitsFrameInfo`),
+    read in order up to the first that cannot be, and that one's ShipstarError (None when
+    all were read).  One block of an index (:func:`scan_frames`), read here or on another
+    process or machine (``shipstar measure-archive`` has its cluster's workers read them)."""
+    from shipstar._fitsio import read_fits_header
+
+    infos = []
+    for p in paths:
+        try:
+            infos.append(read_fits_header(p, date_obs_is=date_obs_is))
+        except ShipstarError as exc:
+            return infos, exc
+    return infos, None
+
+
+def scan_frames(directory, *, date_obs_is: str = "start", check=None, headers=None) -> list[Frame]:
     """The FITS frames of a directory, in file-name order, with their mid-exposure times.
 
     Parameters
@@ -140,6 +177,11 @@ def scan_frames(directory, *, date_obs_is: str = "start", check=None) -> list[Fr
     check : callable, optional
         Called with each frame's :class:`~shipstar._fitsio.FitsFrameInfo` as it is read
         (the header cross-checks, :class:`~shipstar.pipeline._header_check.HeaderCheck`).
+    headers : iterable of (infos, error), optional
+        The headers of :func:`frame_paths` ``(directory)``, read elsewhere with
+        ``date_obs_is``: consecutive blocks in file order, each as
+        :func:`read_header_block` returns it (the first block with an error is the last
+        one read).  By default they are read here, as one block.
 
     Returns
     -------
@@ -153,16 +195,13 @@ def scan_frames(directory, *, date_obs_is: str = "start", check=None) -> list[Fr
         start without EXPTIME / DATE-END), or frames whose times do not increase strictly
         in file-name order (both files named).
     """
-    from shipstar._fitsio import DATE_OBS_CHOICES, is_fits_name, read_fits_header
+    from shipstar._fitsio import DATE_OBS_CHOICES
 
     if date_obs_is not in DATE_OBS_CHOICES:
         raise ShipstarError(f"date_obs_is must be one of {', '.join(DATE_OBS_CHOICES)}, got {date_obs_is!r}")
-    d = Path(directory)
-    if not d.is_dir():
-        raise ShipstarError(f"frames directory {d} does not exist or is not a directory")
-    paths = sorted(p for p in d.iterdir() if is_fits_name(p.name))
-    if not paths:
-        raise ShipstarError(f"no FITS frames (*.fits, *.fit, *.fts, optionally .gz) in {d}")
+    paths = frame_paths(directory)
+    if headers is None:
+        headers = (read_header_block(paths, date_obs_is),)
     frames = []
     # a check that takes many frames at once (HeaderCheck.check_many) runs on the frames
     # read so far when one cannot be read, and on all of them at the end: the first error
@@ -170,19 +209,28 @@ def scan_frames(directory, *, date_obs_is: str = "start", check=None) -> list[Fr
     many = getattr(check, "check_many", None)
     infos = []
     try:
-        for p in paths:
-            info = read_fits_header(p, date_obs_is=date_obs_is)
-            jd1, jd2 = info.mid_utc_jd()
-            if many is not None:
-                infos.append(info)
-            elif check is not None:
-                check(info)
-            frames.append(Frame(jd1, jd2, p.name, path=p, sensor=info.sensor_name, time_source=info.time_source,
-                                exposure_s=info.exposure_s))
+        for block, error in headers:
+            for info in block:
+                p = paths[len(frames)] if len(frames) < len(paths) else None
+                if p is None or info.name != p.name:        # headers read elsewhere, of another listing
+                    raise ShipstarError(f"the frames in {directory} changed while they were indexed "
+                                        f"({info.name} where {p.name if p else 'no more files'} was listed)")
+                jd1, jd2 = info.mid_utc_jd()
+                if many is not None:
+                    infos.append(info)
+                elif check is not None:
+                    check(info)
+                frames.append(Frame(jd1, jd2, p.name, path=p, sensor=info.sensor_name,
+                                    time_source=info.time_source, exposure_s=info.exposure_s))
+            if error is not None:
+                raise error
     except ShipstarError:
         if many is not None:
             many(infos)
         raise
+    if len(frames) != len(paths):                   # pragma: no cover - a reader that lost a block
+        raise ShipstarError(f"{len(paths) - len(frames)} of the {len(paths)} frame headers in {directory} "
+                            f"were not read")
     if many is not None:
         many(infos)
     for a, b in zip(frames, frames[1:]):

@@ -103,6 +103,8 @@ class FitsDirectorySource(FrameSource):
     date_obs_is : {"start", "mid"}
     check : callable, optional
         Called with each frame's header (:func:`shipstar.pipeline.scan_frames`).
+    headers : iterable of (infos, error), optional
+        The headers, read elsewhere (:func:`shipstar.pipeline.scan_frames`' ``headers``).
 
     Raises
     ------
@@ -110,12 +112,12 @@ class FitsDirectorySource(FrameSource):
         As :func:`shipstar.pipeline.scan_frames` (no frames, no time, out of order).
     """
 
-    def __init__(self, name: str, directory, *, date_obs_is: str = "start", check=None):
+    def __init__(self, name: str, directory, *, date_obs_is: str = "start", check=None, headers=None):
         from shipstar.pipeline._frames import scan_frames
 
         self.name = name
         self.directory = str(Path(directory))
-        frames = scan_frames(directory, date_obs_is=date_obs_is, check=check)
+        frames = scan_frames(directory, date_obs_is=date_obs_is, check=check, headers=headers)
         self._names = [f.label for f in frames]
         self._jd1 = np.array([f.utc_jd1 for f in frames])
         self._jd2 = np.array([f.utc_jd2 for f in frames])
