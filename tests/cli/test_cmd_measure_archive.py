@@ -360,6 +360,31 @@ def test_the_index_read_by_the_workers_is_the_one_read_here(root, cluster, tmp_p
         scan_frames(d, headers=reader(frame_paths(root / "sea" / "A1"), "start"))
 
 
+def test_a_frame_only_this_process_can_read_is_named_as_such(root, cluster, tmp_path):
+    """A frame the workers could not read (here: moved away while they read the headers,
+    back before the command looks) is reported as not seen by the workers, not as missing."""
+    import shutil
+
+    from shipstar.errors import ShipstarError
+    from shipstar.pipeline._archive import HeaderReader
+    from shipstar.pipeline._frames import frame_paths, scan_frames
+
+    _, client = cluster
+    d = tmp_path / "A1"
+    shutil.copytree(root / "sea" / "A1", d)
+    paths = frame_paths(d)
+    away = tmp_path / "away.fits"
+    os.replace(d / "A1_00011.fits", away)
+    blocks = HeaderReader(client, block_files=6)(paths, "start")
+    for f in blocks.futures:                             # every block read by now
+        f.result()
+    os.replace(away, d / "A1_00011.fits")
+    with pytest.raises(ShipstarError) as exc:
+        scan_frames(d, headers=blocks)
+    assert str(exc.value).startswith("A1_00011.fits in ") and "reads here but not on the cluster's workers" \
+        in str(exc.value) and "same paths" in str(exc.value)
+
+
 def test_the_command_has_its_workers_read_the_index(root, cluster, monkeypatch, capsys):
     """``measure-archive``'s index in blocks on the cluster's workers (blocks of 5 files
     here): the rows of serial measure, and the blocks ran as tasks."""

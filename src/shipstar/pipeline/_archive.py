@@ -31,6 +31,7 @@ import threading
 import time
 import uuid
 from dataclasses import dataclass
+from pathlib import Path
 
 from shipstar.errors import ShipstarError
 
@@ -244,8 +245,6 @@ class HeaderReader:
         self.client, self.retries, self.block_files = client, int(retries), block_files
 
     def __call__(self, paths, date_obs_is: str):
-        from pathlib import Path
-
         from shipstar.pipeline._frames import read_header_block
 
         paths = list(paths)
@@ -259,20 +258,41 @@ class HeaderReader:
         parent = Path(paths[0]).parent.resolve()
         names = [str(parent / Path(p).name) for p in paths]
         tag = uuid.uuid4().hex[:12]
-        futures = [self.client.submit(_header_task, names[lo:lo + size], date_obs_is, key=f"shipstar-index-{tag}-{k}",
+        blocks = [names[lo:lo + size] for lo in range(0, len(names), size)]
+        futures = [self.client.submit(_header_task, block, date_obs_is, key=f"shipstar-index-{tag}-{k}",
                                       retries=self.retries, pure=False, priority=1)
-                   for k, lo in enumerate(range(0, len(names), size))]
-        return self._results(futures, str(parent))
+                   for k, block in enumerate(blocks)]
+        return _HeaderBlocks(futures, blocks, date_obs_is, str(parent))
 
-    @staticmethod
-    def _results(futures, directory: str):
-        for f in futures:
+
+class _HeaderBlocks:
+    """The results of :class:`HeaderReader`'s tasks, in order (iterable once); ``futures``
+    the tasks.  A frame a worker could not read but this process can is an error that
+    says so: the workers do not see the frames at the same paths (a file system not
+    mounted there), which reading here would not show."""
+
+    def __init__(self, futures, blocks, date_obs_is: str, directory: str):
+        self.futures, self._blocks, self._date_obs_is, self._directory = futures, blocks, date_obs_is, directory
+
+    def __iter__(self):
+        from shipstar._fitsio import read_fits_header
+
+        for f, block in zip(self.futures, self._blocks):
             try:
-                result = f.result()
+                infos, error = f.result()
             except Exception as exc:
-                raise ShipstarError(f"reading the frame headers in {directory} on the cluster failed: "
+                raise ShipstarError(f"reading the frame headers in {self._directory} on the cluster failed: "
                                     f"{_one_line(exc)}") from None
-            yield result
+            if error is not None:
+                try:
+                    read_fits_header(block[len(infos)], date_obs_is=self._date_obs_is)
+                except ShipstarError:
+                    pass                                    # the same error here: reported as reading here would
+                else:
+                    error = ShipstarError(f"{Path(block[len(infos)]).name} in {self._directory} reads here but not "
+                                          f"on the cluster's workers ({error}): they need the frames at the same "
+                                          f"paths")
+            yield infos, error
 
 
 class _Received:
