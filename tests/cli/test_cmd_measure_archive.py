@@ -275,15 +275,53 @@ def test_a_chunk_that_keeps_failing_leaves_the_output_partial(root, cluster):
 
 
 def test_several_sessions_in_one_call(root, cluster):
+    """Two sessions at once: each driven by a process of its own (not the command's), the
+    rows of serial measure."""
     lc, _ = cluster
-    proc = _run(root, "measure-archive", "--session", "nights/n1", "--session", "nights/n2", "--install", "A1.toml",
-                "A2.toml", *CHUNK, "--scheduler", lc.scheduler_address, "--out-dir", "out/nights", "--json")
-    assert proc.returncode == 0, proc.stderr
-    summaries = json.loads(proc.stdout)["sessions"]
+    proc = subprocess.Popen(_cmd("measure-archive", "--session", "nights/n1", "--session", "nights/n2", "--install",
+                                 "A1.toml", "A2.toml", *CHUNK, "--scheduler", lc.scheduler_address, "--out-dir",
+                                 "out/nights", "--json"), cwd=root, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    stdout, stderr = proc.communicate(timeout=300)
+    assert proc.returncode == 0, stderr
+    summaries = json.loads(stdout)["sessions"]
     assert sorted(summaries) == ["n1", "n2"] and all(s["complete"] for s in summaries.values())
     assert (root / "out" / "nights" / "n1.csv").read_text() == _reference(root, "sea")
     assert (root / "out" / "nights" / "n2.csv").read_text() == _reference(root, "n2")
     assert summaries["n2"]["sensors"]["A2"]["n_frames"] == 12
+    pids = {s["driver_pid"] for s in summaries.values()}
+    assert len(pids) == 2 and proc.pid not in pids
+
+
+def test_sigterm_stops_every_session_and_names_those_not_started(root, cluster):
+    """Three sessions, two at once, SIGTERM once the first checkpoint is written: the two
+    running stop after their epoch (their rows so far in OUT.partial), the third is named
+    as not started; no traceback."""
+    lc, _ = cluster
+    out = root / "out" / "stop3"
+    proc = subprocess.Popen(_cmd("measure-archive", "--session", "nights/n1", "--session", "nights/n2", "--session",
+                                 "sea", "--install", "A1.toml", "A2.toml", "--chunk-s", "0.5", "--scheduler",
+                                 lc.scheduler_address, "--out-dir", str(out)), cwd=root, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    end = time.monotonic() + 120
+    while not (out.exists() and any(out.glob("*.resume"))):
+        assert proc.poll() is None and time.monotonic() < end
+        time.sleep(0.002)
+    proc.send_signal(signal.SIGTERM)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 143, stderr
+    assert "Traceback" not in stderr
+    assert "session sea: not started (stopped by SIGTERM); the same command with --resume runs it" in stderr
+    assert not (out / "sea.csv").exists() and not (out / "sea.csv.partial").exists()
+    for name, ref in (("n1", "sea"), ("n2", "n2")):
+        reference = _rows(_reference(root, ref))
+        partial = out / f"{name}.csv.partial"
+        if partial.exists():
+            assert f"session {name}: stopped by SIGTERM" in stderr
+            rows = _rows(partial.read_text())
+            assert len(rows) < len(reference) and rows == reference[:len(rows)]
+        else:                                            # it had finished
+            assert (out / f"{name}.csv").read_text() == _reference(root, ref)
 
 
 def test_sigterm_stops_cleanly_leaving_the_finished_rows(root, cluster):

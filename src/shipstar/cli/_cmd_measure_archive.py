@@ -38,10 +38,11 @@ holding one sub-directory of FITS frames per sensor (named as the sensors of the
 installation files, or --sensors A1,A2) and, unless the position or weather is given
 here, its track.csv and weather.csv (the layout 'shipstar simulate-session' writes).
 Each session's CSV is OUT-DIR/NAME.csv (NAME: the directory's name); --sessions-at-once
-sessions run together (default 2) so that the cluster stays busy between sessions.
-The merging, pairing and fusion run here, about a tenth of the work: one command keeps
-about 9 single-threaded workers busy (image frames); for a larger cluster run several
-commands, each with its share of the sessions, on the same --scheduler (docs/archive.md).
+sessions run together (default 2) so that the cluster stays busy between sessions, each
+driven by a process of its own.  The merging, pairing and fusion of a session run in its
+driver, about a tenth of the work: each keeps about 9 single-threaded workers busy (image
+frames); for a larger cluster run more sessions at once, or several commands, each with
+its share of the sessions, on the same --scheduler (docs/archive.md).
 
 Where the tasks run: a LocalCluster of --workers processes (default: the cores) with one
 thread each, or --scheduler tcp://HOST:PORT (any running Dask scheduler: dask-jobqueue on
@@ -113,7 +114,7 @@ def register(subparsers) -> argparse.ArgumentParser:
     d.add_argument("--connect-timeout-s", type=float_in_range(0.1, 3600.0), default=10.0, metavar="S",
                    help="give up reaching --scheduler after this long (s, default 10)")
     d.add_argument("--sessions-at-once", type=int_in_range(1, 64), default=2, metavar="N",
-                   help="sessions processed together (default 2)")
+                   help="sessions processed together, each driven by a process of its own (default 2)")
     r = p.add_argument_group("output")
     r.add_argument("--out", metavar="CSV", help="with --sensor: the attitude CSV to write")
     r.add_argument("--out-dir", metavar="DIR", help="with --session: write DIR/NAME.csv per session")
@@ -143,6 +144,8 @@ class _Session:
         self.swapped = ""
         self.skipped = ""
         self.resume = False
+        self.not_started = ""          # the signal that stopped the command before this session began
+        self.driver_pid = 0            # the process that drove it, when not this one
 
 
 def _sessions(args) -> list:
@@ -245,9 +248,9 @@ def _prepare(session, header_reader=None) -> None:
 
 def _process_all(sessions, client, args, stop, bar) -> None:
     """Every prepared session through :func:`~shipstar.pipeline._archive.run_archive`,
-    ``--sessions-at-once`` at a time (threads here; the work is on the cluster)."""
-    from concurrent.futures import ThreadPoolExecutor
-
+    ``--sessions-at-once`` at a time.  One session runs here; several run each in a process
+    of its own (:func:`_drive_in_processes`), so that their engines (the merge, the
+    fusion, the CSV: ~1 ms of Python a frame) do not share this process's core."""
     from shipstar.pipeline._archive import run_archive
 
     todo = [s for s in sessions if s.job is not None and not s.swapped and not s.skipped]
@@ -260,23 +263,144 @@ def _process_all(sessions, client, args, stop, bar) -> None:
             bar("frames", sum(done.values()), sum(totals.values()))
         return cb
 
-    def one(s):
+    if len(todo) > 1 and args.sessions_at_once > 1:
+        _drive_in_processes(todo, client.scheduler.address, args, stop, progress)
+        return
+    for s in todo:
         if stop.is_set():
-            return
+            s.not_started = getattr(stop, "reason", "") or "stopped"
+            continue
         try:
-            s.outcome = run_archive(client, s.job, s.sources, s.args.out, retries=args.retries,
-                                    retry_delay_s=args.retry_delay_s, truth=s.truth,
-                                    comments=s.comments, resume=s.resume, chunk_s=args.chunk_s,
+            s.outcome = run_archive(client, s.job, s.sources, s.args.out, **_run_kwargs(s, args),
                                     progress=progress(s), stop=stop)
         except ShipstarError as exc:
             s.error = str(exc)
 
-    if len(todo) == 1:
-        one(todo[0])
-        return
-    with ThreadPoolExecutor(max_workers=min(args.sessions_at_once, max(1, len(todo)))) as ex:
-        for f in [ex.submit(one, s) for s in todo]:
-            f.result()
+
+def _run_kwargs(s, args) -> dict:
+    """:func:`~shipstar.pipeline._archive.run_archive`'s options for session ``s``."""
+    return dict(retries=args.retries, retry_delay_s=args.retry_delay_s, truth=s.truth, comments=s.comments,
+                resume=s.resume, chunk_s=args.chunk_s)
+
+
+#: Signals a driver process is told of, as its stop reason (the value of a shared int).
+_HALT_REASONS = {1: "SIGINT", 2: "SIGTERM", 3: "stopped"}
+
+
+class _Halt:
+    """A driver process's stop event: set when the command's shared ``code`` is non-zero,
+    its ``reason`` the signal the command got (``run_measure``'s ``stop``)."""
+
+    def __init__(self, code):
+        self.code = code
+
+    def is_set(self) -> bool:
+        return self.code.value != 0
+
+    @property
+    def reason(self) -> str:
+        return _HALT_REASONS.get(self.code.value, "")
+
+
+_DRIVER: dict = {}
+
+
+def _driver_init(code, updates) -> None:
+    """A driver process starts: Ctrl-C and SIGTERM are the command's to handle (it tells
+    the drivers through ``code``); Dask as quiet as in the command."""
+    import signal
+
+    import dask
+
+    from shipstar.pipeline._archive import QUIET_DASK
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    dask.config.set(QUIET_DASK)
+    _DRIVER.update(halt=_Halt(code), updates=updates)
+
+
+def _drive_session(address: str, k: int, job, sources, out, kwargs) -> tuple:
+    """In a driver process: session ``k`` through ``run_archive`` with a client of its own to
+    the scheduler at ``address``; ``("ok", ArchiveOutcome, pid)``, ``("error", message,
+    pid)``, or ``("not started", reason, pid)`` when the command was stopped first."""
+    import os
+
+    from distributed import Client
+
+    from shipstar.pipeline._archive import run_archive
+
+    halt, updates = _DRIVER["halt"], _DRIVER["updates"]
+    if halt.is_set():
+        return "not started", halt.reason, os.getpid()
+    client = Client(address, set_as_default=False, timeout=30)
+    try:
+        outcome = run_archive(client, job, sources, out, **kwargs, stop=halt,
+                              progress=lambda n, total: updates.put((k, n, total)))
+        return "ok", outcome, os.getpid()
+    except ShipstarError as exc:
+        return "error", str(exc), os.getpid()
+    finally:
+        client.close()
+
+
+def _drive_in_processes(todo, address: str, args, stop, progress) -> None:
+    """Sessions ``todo``, ``--sessions-at-once`` at a time, each driven by a process of its own
+    (spawned: this process has threads; ~1 s to start) with its own client of the cluster's
+    scheduler: the tasks of all of them share the cluster, and each session's merge, engine
+    and CSV run on a core of their own, where in threads of one process they would share
+    one (Python's GIL: ~1,000 frames a second for all sessions together on the development
+    machine).  A stop (SIGINT, SIGTERM) is passed on: each driver ends after its current
+    epoch, leaving its ``OUT.partial``; a session not started by then is reported as such."""
+    import multiprocessing
+    import queue
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+    from concurrent.futures.process import BrokenProcessPool
+
+    from shipstar.pipeline._measure import one_blas_thread_for_children
+
+    ctx = multiprocessing.get_context("spawn")
+    code, updates = ctx.Value("i", 0), ctx.Queue()
+    callbacks = [progress(s) for s in todo]
+    codes = {v: c for c, v in _HALT_REASONS.items()}
+
+    def drain():
+        while True:
+            try:
+                k, n, total = updates.get_nowait()
+            except queue.Empty:
+                return
+            callbacks[k](n, total)
+
+    ex = ProcessPoolExecutor(max_workers=min(args.sessions_at_once, len(todo)), mp_context=ctx,
+                             initializer=_driver_init, initargs=(code, updates))
+    try:
+        with one_blas_thread_for_children():        # (the processes start with the first tasks)
+            futures = {ex.submit(_drive_session, address, k, s.job, s.sources, s.args.out, _run_kwargs(s, args)): s
+                       for k, s in enumerate(todo)}
+        pending = set(futures)
+        while pending:
+            if stop.is_set() and code.value == 0:
+                code.value = codes.get(getattr(stop, "reason", ""), 3)
+            finished, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+            drain()
+            for f in finished:
+                s = futures[f]
+                try:
+                    what, value, s.driver_pid = f.result()
+                except BrokenProcessPool:
+                    s.error = "its driver process died (out of memory, or killed); OUT.partial holds the rows it " \
+                              "wrote, --resume continues it"
+                    continue
+                if what == "ok":
+                    s.outcome = value
+                elif what == "error":
+                    s.error = value
+                else:
+                    s.not_started = value
+        drain()
+    finally:
+        ex.shutdown(wait=True)
 
 
 def _summary(session, args) -> dict:
@@ -288,9 +412,13 @@ def _summary(session, args) -> dict:
         return {"out": a.out, "complete": True, "skipped": session.skipped}
     if session.swapped or session.error:
         return {"out": a.out, "complete": False, "error": session.swapped or session.error}
+    if session.outcome is None:                     # stopped before it started
+        return {"out": a.out, "complete": False, "stopped": session.not_started or "stopped", "not_started": True}
     o = session.outcome
     m = o.measure
     base = {"chunks": o.n_tasks, "chunks_run_again": list(o.attempts)}
+    if session.driver_pid:
+        base["driver_pid"] = session.driver_pid
     if m is None:
         partial = a.out + ".partial"
         return {"out": partial, "complete": False, "failed_chunk": o.failed, **base}
@@ -386,6 +514,8 @@ def run(args) -> int:
                 print_measure_uncertainty(summary)
             elif summary.get("skipped"):
                 print(f"skipped: {summary['skipped']}")
+            elif summary.get("not_started"):
+                print(f"not started (stopped by {summary['stopped']})")
     code = 0
     for s in sessions:
         summary = summaries[s.name]
@@ -399,6 +529,10 @@ def run(args) -> int:
             print(f"{where}: {tag}failed: {summary['failed_chunk']}; {summary['out']} holds every row before it "
                   f"(the same command with --resume continues it)", file=sys.stderr)
             code = max(code, 1)
+        elif summary.get("not_started"):
+            print(f"{where}: {tag}not started (stopped by {summary['stopped']}); the same command with --resume "
+                  f"runs it", file=sys.stderr)
+            code = max(code, EXIT_CODES.get(summary["stopped"], 1))
         elif summary.get("stopped"):
             print(f"{where}: {tag}stopped by {summary['stopped']}; {summary['out']} holds every finished row; "
                   f"the same command with --resume continues it", file=sys.stderr)
