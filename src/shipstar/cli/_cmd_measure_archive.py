@@ -333,7 +333,11 @@ def _drive_session(address: str, k: int, job, sources, out, kwargs) -> tuple:
     halt, updates = _DRIVER["halt"], _DRIVER["updates"]
     if halt.is_set():
         return "not started", halt.reason, os.getpid()
-    client = Client(address, set_as_default=False, timeout=30)
+    try:
+        client = Client(address, set_as_default=False, timeout=30)
+    except (OSError, TimeoutError, ValueError) as exc:
+        why = " ".join(str(exc).split()) or type(exc).__name__
+        return "error", f"its driver process could not reach the Dask scheduler at {address} ({why})", os.getpid()
     try:
         outcome = run_archive(client, job, sources, out, **kwargs, stop=halt,
                               progress=lambda n, total: updates.put((k, n, total)))
