@@ -398,6 +398,25 @@ def test_the_index_read_by_the_workers_is_the_one_read_here(root, cluster, tmp_p
         scan_frames(d, headers=reader(frame_paths(root / "sea" / "A1"), "start"))
 
 
+def test_measure_has_its_worker_pool_read_the_index(root, monkeypatch):
+    """``measure --workers N``: the pool's processes read the headers in blocks (here of 6
+    files), the same index as reading them here."""
+    from shipstar.pipeline import _frames
+    from shipstar.pipeline._frames import frame_paths, scan_frames
+    from shipstar.pipeline._measure import WorkerPool
+
+    job, _ = _star_list_session(0.5)
+    monkeypatch.setattr(_frames, "INDEX_BLOCK_MIN_FILES", 6)
+    pool = WorkerPool(job, 2)
+    try:
+        d = root / "sea" / "A2"
+        headers = pool.read_headers(frame_paths(d), "start")
+        assert type(headers).__name__ == "IMapIterator"          # the pool's: blocks of 6, 6, 6 and 2
+        assert _index(scan_frames(d, headers=headers)) == _index(scan_frames(d))
+    finally:
+        pool.close(abort=False)
+
+
 def test_a_frame_only_this_process_can_read_is_named_as_such(root, cluster, tmp_path):
     """A frame the workers could not read (here: moved away while they read the headers,
     back before the command looks) is reported as not seen by the workers, not as missing."""

@@ -488,7 +488,7 @@ def run(args) -> int:
     pool = WorkerPool(job, n_workers) if n_workers > 1 else None     # warms up while the frames are indexed
     bar = ProgressBar(True if args.progress else None)
     try:
-        sources = _sources(args, job.configs, track, weather)
+        sources = _sources(args, job.configs, track, weather, header_reader=pool.read_headers if pool else None)
         _check_covered(sources, track, weather)
         swapped = swap_check(job.configs, sources, track, weather, job.options)
         if swapped:

@@ -34,6 +34,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from shipstar.errors import ShipstarError
+from shipstar.pipeline._frames import INDEX_BLOCK_MIN_FILES as _INDEX_BLOCK_MIN_FILES
+from shipstar.pipeline._frames import INDEX_BLOCKS_PER_WORKER as _INDEX_BLOCKS_PER_WORKER
 
 __all__ = ["ChunkFailed", "DaskTasks", "EVENT_TOPIC", "attempts_report", "connect", "describe_chunk",
            "run_archive", "ArchiveOutcome", "DEFAULT_RETRIES", "DEFAULT_RETRY_DELAY_S", "local_start_method",
@@ -70,11 +72,10 @@ QUIET_DASK = {"distributed.worker.profile.enabled": False, "distributed.admin.sy
               "distributed.admin.system-monitor.interval": "2s"}
 #: A session's frame headers are read by the cluster's workers (:class:`HeaderReader`), in
 #: blocks of at least this many files (a sensor's directory of fewer is read by the command
-#: itself: ~0.1 ms a header here, where a block's round trip through the scheduler costs
-#: about what reading 1000 headers saves on two workers) ...
-INDEX_BLOCK_MIN_FILES = 1000
-#: ... and, for a larger directory, about this many blocks per worker thread.
-INDEX_BLOCKS_PER_THREAD = 4
+#: itself), about :data:`INDEX_BLOCKS_PER_THREAD` per worker thread
+#: (:func:`~shipstar.pipeline._frames.header_blocks`).
+INDEX_BLOCK_MIN_FILES = _INDEX_BLOCK_MIN_FILES
+INDEX_BLOCKS_PER_THREAD = _INDEX_BLOCKS_PER_WORKER
 #: The environment a LocalCluster's workers start with: one BLAS thread, and not Dask's
 #: ``MALLOC_TRIM_THRESHOLD_``, which fixes glibc's mmap threshold so that every image-sized
 #: array is mapped and unmapped afresh (measured: 4.8 against 1.1 ms of system time a frame).
@@ -245,20 +246,20 @@ class HeaderReader:
         self.client, self.retries, self.block_files = client, int(retries), block_files
 
     def __call__(self, paths, date_obs_is: str):
-        from shipstar.pipeline._frames import read_header_block
+        from shipstar.pipeline._frames import header_blocks, read_header_block
 
         paths = list(paths)
-        size = self.block_files
-        if size is None:
+        if self.block_files is None:
             threads = max(1, sum(self.client.nthreads().values()))
-            size = max(INDEX_BLOCK_MIN_FILES, math.ceil(len(paths) / (INDEX_BLOCKS_PER_THREAD * threads)))
-        if len(paths) <= size:
+            blocks = header_blocks(paths, threads, min_files=INDEX_BLOCK_MIN_FILES, per_worker=INDEX_BLOCKS_PER_THREAD)
+        else:
+            blocks = header_blocks(paths, 1, min_files=self.block_files, per_worker=len(paths))
+        if len(blocks) == 1:
             return iter((read_header_block(paths, date_obs_is),))
         # the workers may run in another directory: absolute paths (one directory, resolved once)
         parent = Path(paths[0]).parent.resolve()
-        names = [str(parent / Path(p).name) for p in paths]
+        blocks = [[str(parent / Path(p).name) for p in block] for block in blocks]
         tag = uuid.uuid4().hex[:12]
-        blocks = [names[lo:lo + size] for lo in range(0, len(names), size)]
         futures = [self.client.submit(_header_task, block, date_obs_is, key=f"shipstar-index-{tag}-{k}",
                                       retries=self.retries, pure=False, priority=1)
                    for k, block in enumerate(blocks)]

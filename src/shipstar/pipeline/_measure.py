@@ -338,6 +338,20 @@ class WorkerPool:
         with one_blas_thread_for_children():
             self.pool = context.Pool(self.workers, initializer=_init_worker, initargs=(job, self.queue))
 
+    def read_headers(self, paths, date_obs_is: str):
+        """The headers of ``paths`` read by the workers in blocks, side by side (the blocks'
+        results in file order, as :func:`~shipstar.pipeline._frames.scan_frames` takes them
+        as ``headers``); a directory of a single block is read here.  A night of two
+        sensors at 10 frames/s is 720 000 headers, ~1.7 min read one by one here."""
+        from functools import partial
+
+        from shipstar.pipeline._frames import header_blocks, read_header_block
+
+        blocks = header_blocks(paths, self.workers)
+        if len(blocks) == 1:
+            return iter((read_header_block(blocks[0], date_obs_is),))
+        return self.pool.imap(partial(read_header_block, date_obs_is=date_obs_is), blocks)
+
     def close(self, abort: bool) -> None:
         """Stop the workers (``abort``: at once, else after their tasks); idempotent."""
         if self.pool is None:
