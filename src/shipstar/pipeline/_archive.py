@@ -229,7 +229,7 @@ class HeaderReader:
     single block is read here).
 
     A night of two sensors at 10 frames/s is 720 000 files: read one by one by this
-    process, their headers took ~1.6 min on the development machine before the first task
+    process, their headers took ~1.7 min on the development machine before the first task
     could start, longer on a network file system (a round trip per file); the workers
     read them side by side, next to the frames.  A block whose task fails is retried
     (``retries``); one that still fails ends the indexing with a one-line error.
@@ -253,7 +253,7 @@ class HeaderReader:
             threads = max(1, sum(self.client.nthreads().values()))
             blocks = header_blocks(paths, threads, min_files=INDEX_BLOCK_MIN_FILES, per_worker=INDEX_BLOCKS_PER_THREAD)
         else:
-            blocks = header_blocks(paths, 1, min_files=self.block_files, per_worker=len(paths))
+            blocks = [paths[lo:lo + self.block_files] for lo in range(0, len(paths), self.block_files)]
         if len(blocks) == 1:
             return iter((read_header_block(paths, date_obs_is),))
         # the workers may run in another directory: absolute paths (one directory, resolved once)
