@@ -393,9 +393,12 @@ def test_the_index_read_by_the_workers_is_the_one_read_here(root, cluster, tmp_p
         checked.append(seen.names)
     assert errors[0] == errors[1] and "A2_00013.fits" in errors[0]
     assert checked[0] == checked[1] == [f"A2_{k:05d}.fits" for k in range(13)]
-    # headers of another listing are refused, not paired with the wrong files
+    # headers of another listing are refused, not paired with the wrong files; missing ones too
     with pytest.raises(ShipstarError, match="changed while they were indexed"):
         scan_frames(d, headers=reader(frame_paths(root / "sea" / "A1"), "start"))
+    first = next(iter(reader(frame_paths(d), "start")))
+    with pytest.raises(ShipstarError, match="14 of the 20 frame headers in .* were not read"):
+        scan_frames(d, headers=[first])
 
 
 def test_measure_has_its_worker_pool_read_the_index(root, monkeypatch):

@@ -250,7 +250,7 @@ def scan_frames(directory, *, date_obs_is: str = "start", check=None, headers=No
         if many is not None:
             many(infos)
         raise
-    if len(frames) != len(paths):                   # pragma: no cover - a reader that lost a block
+    if len(frames) != len(paths):                   # a reader that lost a block
         raise ShipstarError(f"{len(paths) - len(frames)} of the {len(paths)} frame headers in {directory} "
                             f"were not read")
     if many is not None:
