@@ -244,17 +244,10 @@ def _configs(args) -> list:
 def _first_frame_time(directory, date_obs_is: str) -> tuple:
     """Mid-exposure UTC of a directory's first frame by name (the session's start is the
     earliest of the sensors'; the full index, read later, checks the order)."""
-    from pathlib import Path
+    from shipstar._fitsio import read_fits_header
+    from shipstar.pipeline._frames import frame_paths
 
-    from shipstar._fitsio import is_fits_name, read_fits_header
-
-    d = Path(directory)
-    if not d.is_dir():
-        raise ShipstarError(f"frames directory {d} does not exist or is not a directory")
-    names = sorted(p.name for p in d.iterdir() if is_fits_name(p.name))
-    if not names:
-        raise ShipstarError(f"no FITS frames (*.fits, *.fit, *.fts, optionally .gz) in {d}")
-    return read_fits_header(d / names[0], date_obs_is=date_obs_is).mid_utc_jd()
+    return read_fits_header(frame_paths(directory)[0], date_obs_is=date_obs_is).mid_utc_jd()
 
 
 def _sources(args, configs, track=None, weather=None, header_reader=None) -> list:
