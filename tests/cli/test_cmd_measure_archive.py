@@ -450,11 +450,11 @@ def test_the_command_has_its_workers_read_the_index(root, cluster, monkeypatch, 
     here): the rows of serial measure, and the blocks ran as tasks."""
     from distributed import get_task_stream
 
-    import shipstar.pipeline._archive as archive
     from shipstar.cli import main
+    from shipstar.pipeline import _frames
 
     lc, client = cluster
-    monkeypatch.setattr(archive, "INDEX_BLOCK_MIN_FILES", 5)
+    monkeypatch.setattr(_frames, "INDEX_BLOCK_MIN_FILES", 5)
     monkeypatch.chdir(root)
     with get_task_stream(client) as ts:
         code = main(["measure-archive", *SEA, *CHUNK, "--scheduler", lc.scheduler_address, "--out",

@@ -34,12 +34,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from shipstar.errors import ShipstarError
-from shipstar.pipeline._frames import INDEX_BLOCK_MIN_FILES as _INDEX_BLOCK_MIN_FILES
-from shipstar.pipeline._frames import INDEX_BLOCKS_PER_WORKER as _INDEX_BLOCKS_PER_WORKER
 
 __all__ = ["ChunkFailed", "DaskTasks", "EVENT_TOPIC", "attempts_report", "connect", "describe_chunk",
            "run_archive", "ArchiveOutcome", "DEFAULT_RETRIES", "DEFAULT_RETRY_DELAY_S", "local_start_method",
-           "warm_here", "warm_workers", "HeaderReader", "INDEX_BLOCK_MIN_FILES", "INDEX_BLOCKS_PER_THREAD"]
+           "warm_here", "warm_workers", "HeaderReader"]
 
 #: The scheduler's event topic of every attempt (``client.get_events(EVENT_TOPIC)``).
 EVENT_TOPIC = "shipstar-archive"
@@ -70,12 +68,6 @@ STREAM_FRAMES = 20
 QUIET_DASK = {"distributed.worker.profile.enabled": False, "distributed.admin.system-monitor.gil.enabled": False,
               "distributed.admin.tick.interval": "1s", "distributed.worker.memory.monitor-interval": "1s",
               "distributed.admin.system-monitor.interval": "2s"}
-#: A session's frame headers are read by the cluster's workers (:class:`HeaderReader`), in
-#: blocks of at least this many files (a sensor's directory of fewer is read by the command
-#: itself), about :data:`INDEX_BLOCKS_PER_THREAD` per worker thread
-#: (:func:`~shipstar.pipeline._frames.header_blocks`).
-INDEX_BLOCK_MIN_FILES = _INDEX_BLOCK_MIN_FILES
-INDEX_BLOCKS_PER_THREAD = _INDEX_BLOCKS_PER_WORKER
 #: The environment a LocalCluster's workers start with: one BLAS thread, and not Dask's
 #: ``MALLOC_TRIM_THRESHOLD_``, which fixes glibc's mmap threshold so that every image-sized
 #: array is mapped and unmapped afresh (measured: 4.8 against 1.1 ms of system time a frame).
@@ -222,9 +214,9 @@ def warm_workers(client, cameras) -> list:
 
 class HeaderReader:
     """Reads the frame headers of a session's index on a Dask cluster's workers:
-    ``reader(paths, date_obs_is)`` submits them now, in blocks (at least
-    :data:`INDEX_BLOCK_MIN_FILES` files, about :data:`INDEX_BLOCKS_PER_THREAD` per worker
-    thread), and returns the iterator of their results in file order that
+    ``reader(paths, date_obs_is)`` submits them now, in blocks
+    (:func:`~shipstar.pipeline._frames.header_blocks`: at least 1000 files, about 4 per
+    worker thread), and returns the iterator of their results in file order that
     :func:`~shipstar.pipeline._frames.scan_frames` takes as ``headers`` (a directory of a
     single block is read here).
 
@@ -251,7 +243,7 @@ class HeaderReader:
         paths = list(paths)
         if self.block_files is None:
             threads = max(1, sum(self.client.nthreads().values()))
-            blocks = header_blocks(paths, threads, min_files=INDEX_BLOCK_MIN_FILES, per_worker=INDEX_BLOCKS_PER_THREAD)
+            blocks = header_blocks(paths, threads)
         else:
             blocks = [paths[lo:lo + self.block_files] for lo in range(0, len(paths), self.block_files)]
         if len(blocks) == 1:
