@@ -552,12 +552,15 @@ def test_compiled_line_filter_is_the_numpy_reference_bit_for_bit():
     images = [np.clip(base, 0, 65535).astype(np.uint16), base.astype(np.float32), base,
               np.clip(base, 0, 255).astype(np.uint8), base.astype(np.int32), base * 1e31]
     patch = (np.array([0, 7 * width + 3, height * width - 1]), np.array([1000.0, 1100.5, 990.25]))
+    # unsorted, a pixel patched twice (the last value counts, as numpy assigns), a whole row's ends
+    shuffled = (np.array([height * width - 1, 7 * width + 3, 0, 20 * width, 7 * width + 3, 21 * width - 1]),
+                np.array([990.25, 1100.5, 1000.0, 1500.0, 1200.0, 800.0]))
     for smear in [(0.0, 0.0), (2.2, 0.3), (6.0, 2.0), (-3.0, 25.0), (24.0, -24.0), (0.4, -9.6), (40.0, 3.0),
                   (-13.0, -4.5)]:
         for across in (0, 1, 2, 3):
             lf = LineFilter(smear, across)
             for image in images:
-                for pt in (None, patch):
+                for pt in (None, patch, shuffled):
                     got = line_filter(image, fill, lf, pt).copy()
                     ref = _line_filter_python(image, fill, lf, pt).copy()
                     assert got.dtype == ref.dtype

@@ -506,6 +506,11 @@ static long clip_normal(const double *z, const double *zz, const double *X, long
 {
     static const double ROW_WEIGHTS[3] = {1.0, 2.0, 1.0};
     long used = 0;
+    /* the sums in locals (A and b could alias the inputs for the compiler, which then stores
+     * and reloads every term: 5 x slower); the same additions in the same order */
+    double Al[16], bl[4];
+    memcpy(Al, A, sizeof Al);
+    memcpy(bl, b, sizeof bl);
     for (long i = 0; i < m; i++) {
         const double *Xi = X + 12 * i;
         double V[3];
@@ -522,11 +527,13 @@ static long clip_normal(const double *z, const double *zz, const double *X, long
             const double *x = Xi + 4 * r;
             double wr = w * ROW_WEIGHTS[r];
             for (int p = 0; p < 4; p++) {
-                b[p] += wr * x[p] * zz[3 * i + r];
-                for (int q = 0; q < 4; q++) A[4 * p + q] += wr * x[p] * x[q];
+                bl[p] += wr * x[p] * zz[3 * i + r];
+                for (int q = 0; q < 4; q++) Al[4 * p + q] += wr * x[p] * x[q];
             }
         }
     }
+    memcpy(A, Al, sizeof Al);
+    memcpy(b, bl, sizeof bl);
     return used;
 }
 

@@ -866,9 +866,10 @@ static PyObject *py_tap_sum(PyObject *self, PyObject *args) {
 /* ------------------------------------------------------------------ the whole line filter */
 
 /* line_filter(image, type, H, W, fill, minor_is_row, across_px, pad, terms (T, 3) i8 [source,
- * oy, ox], n_terms, kinds (K, 2) i8 [dy, dx], K, across (H + 2 pad, W + 2 pad) work, out (H, W),
- * is_double): _matched.line_filter's sum in one call, the same sums in the same order: the
- * pixels cast to the sum type (fill off the image), across[p] = ((P[p - e] + P[p + e]) + P[p])
+ * oy, ox], n_terms, kinds (K, 2) i8 [dy, dx], K, patch_idx (P,) i8 sorted flat indices, patch_values
+ * (P,) in the sum type, P, across (H + 2 pad, W + 2 pad) work, out (H, W), is_double):
+ * _matched.line_filter's sum in one call, the same sums in the same order: the pixels cast to the
+ * sum type (fill off the image; a patched pixel, the last of its index, takes its value), across[p] = ((P[p - e] + P[p + e]) + P[p])
  * + P[p + 2e] + P[p - 2e] ... over the across half-width (e one step across the smear), then
  * out[p] = the terms in order: source 0 across[p + o], source 1 + j the pair (across[p + o] +
  * across[p + o + d_j]) of kind j.  Row by row (the rows a term reads stay in the cache); the
@@ -913,7 +914,8 @@ LF_VEC(d, double)
 
 #define LINE_FILTER(TS, TT)                                                                             \
     static void lf_row_##TS(const void *img, int t, Py_ssize_t H, Py_ssize_t W, Py_ssize_t y, Py_ssize_t pad,   \
-                            Py_ssize_t ext, TT fill, TT *dst) {                                         \
+                            Py_ssize_t ext, TT fill, const int64_t *pidx, const TT *pval, Py_ssize_t np_, \
+                            TT *dst) {                                                                  \
         Py_ssize_t wp = W + 2 * pad;                                                                    \
         if (y < 0 || y >= H) { for (Py_ssize_t c = 0; c < wp + 2 * ext; c++) dst[c] = fill; return; }   \
         for (Py_ssize_t c = 0; c < ext + pad; c++) dst[c] = fill;                                       \
@@ -931,10 +933,17 @@ LF_VEC(d, double)
             case 8: LF_CAST_ROW(TS, f32, float); break;                                                 \
             default: LF_CAST_ROW(TS, f64, double); break;                                               \
         }                                                                                               \
+        if (np_) {                      /* the patched pixels of row y (sorted flat indices) */         \
+            const int64_t r0 = (int64_t)y * W, r1 = r0 + W;                                             \
+            Py_ssize_t lo = 0, hi = np_;                                                                \
+            while (lo < hi) { Py_ssize_t m = (lo + hi) / 2; if (pidx[m] < r0) lo = m + 1; else hi = m; } \
+            for (; lo < np_ && pidx[lo] < r1; lo++) d[pidx[lo] - r0] = pval[lo];                        \
+        }                                                                                               \
     }                                                                                                   \
     static int line_filter_##TS(const void *img, int t, Py_ssize_t H, Py_ssize_t W, double fill_d,      \
                                 int minor_is_row, Py_ssize_t w, Py_ssize_t pad, const int64_t *terms,   \
-                                Py_ssize_t n_terms, const int64_t *kinds, TT *A, TT *out) {             \
+                                Py_ssize_t n_terms, const int64_t *kinds, const int64_t *pidx,          \
+                                const TT *pval, Py_ssize_t np_, TT *A, TT *out) {                       \
         const TT fill = (TT)fill_d;                                                                     \
         const Py_ssize_t wp = W + 2 * pad, hp = H + 2 * pad, ext = minor_is_row ? 0 : w;               \
         const Py_ssize_t nrow = minor_is_row ? 2 * w + 1 : 1;                                          \
@@ -944,7 +953,7 @@ LF_VEC(d, double)
             TT *restrict a = A + pr * wp;                                                               \
             if (minor_is_row) {             /* e = one row: rows pr - w .. pr + w */                     \
                 for (Py_ssize_t j = 0; j < nrow; j++)                                                   \
-                    lf_row_##TS(img, t, H, W, pr - pad + j - w, pad, 0, fill, rows + j * wp);           \
+                    lf_row_##TS(img, t, H, W, pr - pad + j - w, pad, 0, fill, pidx, pval, np_, rows + j * wp);           \
                 const TT *restrict r0 = rows + w * wp;                                                  \
                 if (w == 0) { memcpy(a, r0, sizeof(TT) * (size_t)wp); continue; }                       \
                 const TT *restrict rm = r0 - wp, *restrict rp = r0 + wp;                                \
@@ -955,7 +964,7 @@ LF_VEC(d, double)
                     lf_add_##TS(a, dn, wp);                                                             \
                 }                                                                                       \
             } else {                        /* e = one column: the padded row widened by w fills */      \
-                lf_row_##TS(img, t, H, W, pr - pad, pad, ext, fill, rows);                              \
+                lf_row_##TS(img, t, H, W, pr - pad, pad, ext, fill, pidx, pval, np_, rows);                              \
                 const TT *restrict r0 = rows + ext;                                                     \
                 if (w == 0) { memcpy(a, r0, sizeof(TT) * (size_t)wp); continue; }                       \
                 lf_sum3_##TS(a, r0 - 1, r0 + 1, r0, wp);                                                \
@@ -984,13 +993,14 @@ LINE_FILTER(f, float)
 LINE_FILTER(d, double)
 
 static PyObject *py_line_filter(PyObject *self, PyObject *args) {
-    Py_buffer ib, tb, kb, ab, ob;
-    Py_ssize_t h, w, across_px, pad, n_terms, n_kinds;
+    Py_buffer ib, tb, kb, pib, pvb, ab, ob;
+    Py_ssize_t h, w, across_px, pad, n_terms, n_kinds, n_patch;
     double fill;
     int minor_is_row, is_double, rc = -1;
     const char *code;
-    if (!PyArg_ParseTuple(args, "y*snndpnny*ny*nw*w*p", &ib, &code, &h, &w, &fill, &minor_is_row, &across_px,
-                          &pad, &tb, &n_terms, &kb, &n_kinds, &ab, &ob, &is_double))
+    if (!PyArg_ParseTuple(args, "y*snndpnny*ny*ny*y*nw*w*p", &ib, &code, &h, &w, &fill, &minor_is_row,
+                          &across_px, &pad, &tb, &n_terms, &kb, &n_kinds, &pib, &pvb, &n_patch, &ab, &ob,
+                          &is_double))
         return NULL;
     int t = type_index(code);
     size_t item = is_double ? sizeof(double) : sizeof(float);
@@ -998,7 +1008,14 @@ static PyObject *py_line_filter(PyObject *self, PyObject *args) {
              && tb.len == (Py_ssize_t)(3 * n_terms * sizeof(int64_t))
              && kb.len >= (Py_ssize_t)(2 * n_kinds * sizeof(int64_t))
              && ab.len == (Py_ssize_t)((size_t)(h + 2 * pad) * (size_t)(w + 2 * pad) * item)
-             && ob.len == (Py_ssize_t)((size_t)h * (size_t)w * item);
+             && ob.len == (Py_ssize_t)((size_t)h * (size_t)w * item)
+             && n_patch >= 0 && pib.len >= (Py_ssize_t)(n_patch * sizeof(int64_t))
+             && pvb.len >= (Py_ssize_t)((size_t)n_patch * item);
+    if (ok) {                                       /* patches sorted, on the image */
+        const int64_t *pi = pib.buf;
+        for (Py_ssize_t k = 0; k < n_patch && ok; k++)
+            ok = pi[k] >= 0 && pi[k] < (int64_t)h * w && (k == 0 || pi[k] >= pi[k - 1]);
+    }
     if (ok) {                                       /* every tap inside the padded frame */
         const int64_t *tm = tb.buf, *kd = kb.buf;
         for (Py_ssize_t k = 0; k < n_terms && ok; k++) {
@@ -1013,15 +1030,15 @@ static PyObject *py_line_filter(PyObject *self, PyObject *args) {
     if (ok) {
         Py_BEGIN_ALLOW_THREADS
         rc = is_double ? line_filter_d(ib.buf, t, h, w, fill, minor_is_row, across_px, pad, tb.buf, n_terms, kb.buf,
-                                       ab.buf, ob.buf)
+                                       pib.buf, pvb.buf, n_patch, ab.buf, ob.buf)
                        : line_filter_f(ib.buf, t, h, w, fill, minor_is_row, across_px, pad, tb.buf, n_terms, kb.buf,
-                                       ab.buf, ob.buf);
+                                       pib.buf, pvb.buf, n_patch, ab.buf, ob.buf);
         Py_END_ALLOW_THREADS
     }
-    PyBuffer_Release(&ib); PyBuffer_Release(&tb); PyBuffer_Release(&kb); PyBuffer_Release(&ab);
-    PyBuffer_Release(&ob);
+    PyBuffer_Release(&ib); PyBuffer_Release(&tb); PyBuffer_Release(&kb); PyBuffer_Release(&pib);
+    PyBuffer_Release(&pvb); PyBuffer_Release(&ab); PyBuffer_Release(&ob);
     if (!ok) {
-        if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "line_filter: bad sizes or terms");
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "line_filter: bad sizes, terms or patches");
         return NULL;
     }
     if (rc < 0) return PyErr_NoMemory();

@@ -248,9 +248,12 @@ def tap_sum(terms, out, span: int):
     _ckernels.tap_sum(*padded, table, out, int(span), len(terms), dtype == np.float64)
 
 
-def line_filter(image, fill_value: float, minor_is_row: bool, across_px: int, pad: int, terms, kinds, out):
+def line_filter(image, fill_value: float, minor_is_row: bool, across_px: int, pad: int, terms, kinds, out,
+                patch=None):
     """The line filter of ``image`` (H, W) into ``out`` (H, W), float32 or float64 (its
-    dtype is the sum's): ``terms (T, 3)`` int64 ``[source, oy, ox]`` (source 0: the
+    dtype is the sum's), the pixels ``patch`` ``(flat indices (P,), values (P,) or one)``
+    replaced first, as ``image.astype(out.dtype).reshape(-1)[idx] = values`` would (the
+    frame itself is not changed): ``terms (T, 3)`` int64 ``[source, oy, ox]`` (source 0: the
     partial sums across the smear, ``1 + j``: pairs of them of kind ``j``), ``kinds (K, 2)``
     int64 ``[dy, dx]`` (the steps from a pair's first tap to its second), every
     term within ``pad`` of the pixel (see ``_matched._terms``); ``minor_is_row``: one step
@@ -262,10 +265,23 @@ def line_filter(image, fill_value: float, minor_is_row: bool, across_px: int, pa
     if (dtype not in (np.float32, np.float64) or out.shape != image.shape or not out.flags.c_contiguous
             or terms.ndim != 2 or terms.shape[1] != 3 or not len(terms)):
         raise ValueError("line_filter: bad arrays")
+    if patch is None:
+        p_idx, p_val = np.zeros(1, np.int64), np.zeros(1, dtype)
+        n_patch = 0
+    else:
+        p_idx = np.asarray(patch[0], dtype=np.int64).reshape(-1)
+        p_val = np.broadcast_to(np.asarray(patch[1]).astype(dtype, casting="same_kind"), p_idx.shape)
+        order = np.argsort(p_idx, kind="stable")      # a repeated index: the last value, as numpy assigns
+        p_idx, p_val = np.ascontiguousarray(p_idx[order]), np.ascontiguousarray(p_val[order])
+        n_patch = len(p_idx)
+        if n_patch and not (0 <= p_idx[0] and p_idx[-1] < image.size):
+            raise ValueError("line_filter: a patched pixel off the image")
+        if not n_patch:
+            p_idx, p_val = np.zeros(1, np.int64), np.zeros(1, dtype)
     across = scratch("kernels.line_filter.across", (image.shape[0] + 2 * pad, image.shape[1] + 2 * pad), dtype)
     _ckernels.line_filter(image, code, *image.shape, float(fill_value), bool(minor_is_row), int(across_px),
                           int(pad), terms, len(terms), kinds if len(kinds) else np.zeros((1, 2), np.int64),
-                          len(kinds), across, out, dtype == np.float64)
+                          len(kinds), p_idx, p_val, n_patch, across, out, dtype == np.float64)
 
 
 def label_runs(idx, width: int, *, diagonal: bool = True):
