@@ -121,9 +121,13 @@ def test_cache_file_holds_the_kernel_arrays_and_an_old_file_is_completed(tmp_cac
     np.testing.assert_array_equal(u64, fresh.u64)
     np.testing.assert_array_equal(cell_u, fresh.cell_u)
     np.testing.assert_array_equal(size_q, fresh.size_q)
-    mapped = _DbBuffers(db)
-    assert mapped.cell_u is cell_u or np.shares_memory(mapped.cell_u, cell_u)
-    assert mapped.size_q is size_q or np.shares_memory(mapped.size_q, size_q)
+    mapped = _DbBuffers(db)                     # the stored arrays taken (copied into huge pages)
+    assert mapped.from_file and not fresh.from_file
+    np.testing.assert_array_equal(mapped.cell_u, cell_u)
+    np.testing.assert_array_equal(mapped.size_q, size_q)
+    for name in ("key_hi_start", "key_lo", "pstars", "u32", "cell_index", "cell_u", "u64", "hip"):
+        assert not getattr(mapped, name).flags.writeable, name
+    assert mapped.key_hi_start.ctypes.data % (2 * 2 ** 20) == 0  # one 2 MB aligned region
     # a file written before the kernel arrays: read as it is, then completed once
     got = _database._read_header(path)
     head, start = got
