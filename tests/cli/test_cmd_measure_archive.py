@@ -466,6 +466,64 @@ def test_the_command_has_its_workers_read_the_index(root, cluster, monkeypatch, 
     assert len(blocks) == 8                              # 20 frames of each sensor in blocks of 5
 
 
+def test_sessions_are_prepared_one_ahead_and_a_bad_one_does_not_stop_the_others(root, cluster, monkeypatch,
+                                                                                 capsys):
+    """Three sessions, the middle one with a frame that is not FITS: each session is indexed
+    when due (the next one while the ones before it run in their drivers, not all of them
+    before the first task), the bad one is named on one line and the other two give the
+    rows of serial measure."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    from shipstar.cli import _cmd_measure_archive as cma
+    from shipstar.cli import main
+
+    lc, _ = cluster
+    bad = root / "nights3" / "bad"
+    for sensor in ("A1", "A2"):
+        (bad / sensor).mkdir(parents=True)
+        for f in sorted((root / "nights" / "n2" / sensor).iterdir()):
+            os.symlink(f, bad / sensor / f.name)
+    for name in ("track.csv", "weather.csv"):
+        os.symlink(root / "nights" / "n2" / name, bad / name)
+    victim = sorted((bad / "A1").glob("*.fits"))[5]
+    victim.unlink()
+    victim.write_bytes(b"not a FITS file at all" * 200)
+    log = []
+    prepare, submit = cma._prepare, ProcessPoolExecutor.submit
+
+    def timed_prepare(session, header_reader=None):
+        log.append(("prepare", session.name, time.monotonic()))
+        try:
+            return prepare(session, header_reader)
+        finally:
+            log.append(("prepared", session.name, time.monotonic()))
+
+    def timed_submit(self, fn, *args, **kwargs):
+        log.append(("submit", args[1], time.monotonic()))          # (_drive_session, address, k, ...)
+        return submit(self, fn, *args, **kwargs)
+
+    monkeypatch.setattr(cma, "_prepare", timed_prepare)
+    monkeypatch.setattr(ProcessPoolExecutor, "submit", timed_submit)
+    monkeypatch.chdir(root)
+    code = main(["measure-archive", "--session", "nights/n1", "--session", str(bad), "--session", "nights/n2",
+                 "--install", "A1.toml", "A2.toml", *CHUNK, "--scheduler", lc.scheduler_address, "--out-dir",
+                 "out/three", "--json"])
+    out, err = capsys.readouterr()
+    assert code == 2, err
+    lines = [line for line in err.splitlines() if "error" in line]
+    assert len(lines) == 1 and "session bad: " in lines[0] and victim.name in lines[0], err
+    summaries = json.loads(out)["sessions"]
+    assert summaries["bad"]["complete"] is False and victim.name in summaries["bad"]["error"]
+    assert (root / "out" / "three" / "n1.csv").read_text() == _reference(root, "sea")
+    assert (root / "out" / "three" / "n2.csv").read_text() == _reference(root, "n2")
+    assert not (root / "out" / "three" / "bad.csv").exists()
+    assert [n for what, n, _ in log if what == "prepare"] == ["n1", "bad", "n2"]
+    at = {(what, n): t for what, n, t in log}
+    assert [k for what, k, _ in log if what == "submit"] == [0, 2]            # n1, then n2 (bad not sent)
+    # n1 went to its driver before the next session's index was read: not every session first
+    assert at[("submit", 0)] < at[("prepared", "bad")]
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

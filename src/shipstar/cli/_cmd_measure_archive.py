@@ -39,7 +39,9 @@ installation files, or --sensors A1,A2) and, unless the position or weather is g
 here, its track.csv and weather.csv (the layout 'shipstar simulate-session' writes).
 Each session's CSV is OUT-DIR/NAME.csv (NAME: the directory's name); --sessions-at-once
 sessions run together (default 2) so that the cluster stays busy between sessions, each
-driven by a process of its own.  The merging, pairing and fusion of a session run in its
+driven by a process of its own.  Each session is indexed when due (the next one while the
+current ones run); one that cannot be (a bad frame, folders that look swapped) is named on
+one line and the others go on.  The merging, pairing and fusion of a session run in its
 driver, about a tenth of the work: each keeps about 9 single-threaded workers busy (image
 frames); for a larger cluster run more sessions at once, or several commands, each with
 its share of the sessions, on the same --scheduler (docs/archive.md).
@@ -246,29 +248,118 @@ def _prepare(session, header_reader=None) -> None:
     session.comments = _csv_comments(session.eop, session.start_warnings) + _override_comments(session.overrides)
 
 
-def _process_all(sessions, client, args, stop, bar) -> None:
-    """Every prepared session through :func:`~shipstar.pipeline._archive.run_archive`,
-    ``--sessions-at-once`` at a time.  One session runs here; several run each in a process
-    of its own (:func:`_drive_in_processes`), so that their engines (the merge, the
-    fusion, the CSV: ~1 ms of Python a frame) do not share this process's core."""
+class _Preparation:
+    """Sessions prepared (:func:`_prepare`) in their order by one thread of this process,
+    each when taken or, with ``ahead`` 1, the next one while those taken are processed
+    (in driver processes: this process's main thread then only watches them, so that the
+    accuracy warnings the preparation records are its own session's).  A night's index
+    (720 000 headers for two sensors at 10 frames/s, read by the workers but assembled and
+    checked here) and its swap check thus no longer wait until every session of a voyage
+    has been indexed, nor leave the cluster idle meanwhile.
+
+    A session whose preparation fails gets its one-line ``error`` (or ``swapped``) and the
+    others go on; once ``stop`` is set no further session is prepared (``not_started``).
+    """
+
+    def __init__(self, sessions, header_reader, stop, ahead: int = 1):
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.sessions, self.reader, self.ahead, self.stop = list(sessions), header_reader, int(ahead), stop
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="shipstar-prepare")
+        self._futures: list = []
+        self._taken = 0
+        self._fill()
+
+    def _fill(self) -> None:
+        while len(self._futures) < min(len(self.sessions), self._taken + self.ahead):
+            self._futures.append(self._pool.submit(self._one, self.sessions[len(self._futures)]))
+
+    def _one(self, s) -> None:
+        if self.stop.is_set():
+            s.not_started = getattr(self.stop, "reason", "") or "stopped"
+            return
+        try:
+            _prepare(s, self.reader)
+        except ShipstarError as exc:
+            s.error = str(exc)
+        except Exception as exc:                   # the cluster closed under a stop: not an error of its own
+            if not self.stop.is_set():
+                raise
+            s.not_started = getattr(self.stop, "reason", "") or f"stopped ({type(exc).__name__})"
+
+    def take(self, i: int, timeout_s: float | None = None):
+        """Session ``i`` once prepared (waiting at most ``timeout_s``: None when not yet),
+        then the next ones set going."""
+        from concurrent.futures import TimeoutError as FutureTimeout
+
+        while len(self._futures) <= i:
+            self._futures.append(self._pool.submit(self._one, self.sessions[len(self._futures)]))
+        try:
+            self._futures[i].result(timeout=timeout_s)
+        except FutureTimeout:
+            return None
+        self._taken = max(self._taken, i + 1)
+        self._fill()
+        s = self.sessions[i]
+        if s.overrides:
+            from shipstar.cli._header_checks import print_overrides
+
+            print_overrides("measure-archive", s.overrides)
+        return s
+
+    def close(self) -> None:
+        for f in self._futures:
+            f.cancel()
+        self._pool.shutdown(wait=True)
+
+
+class _Prepared:
+    """:class:`_Preparation`'s part for a session prepared already (one session)."""
+
+    @staticmethod
+    def take(i: int, timeout_s: float | None = None):
+        return True
+
+    @staticmethod
+    def close() -> None:
+        pass
+
+
+def _runnable(s) -> bool:
+    return s.job is not None and not (s.swapped or s.error or s.skipped or s.not_started)
+
+
+def _process_all(sessions, client, args, stop, bar, prep) -> None:
+    """Every session through :func:`~shipstar.pipeline._archive.run_archive`,
+    ``--sessions-at-once`` at a time, each taken from ``prep`` (:class:`_Preparation`)
+    once prepared.  One session runs here; several run each in a process of its own
+    (:func:`_drive_in_processes`), so that their engines (the merge, the fusion, the CSV:
+    ~1 ms of Python a frame) do not share this process's core."""
     from shipstar.pipeline._archive import run_archive
 
-    todo = [s for s in sessions if s.job is not None and not s.swapped and not s.skipped]
-    totals = {id(s): sum(len(src) for src in s.sources) for s in todo}
+    todo = [s for s in sessions if not s.skipped]
+    totals = {id(s): 0 for s in todo}
     done = {id(s): 0 for s in todo}
 
     def progress(s):
+        totals[id(s)] = sum(len(src) for src in s.sources)
+
         def cb(n, total):
             done[id(s)] = n
-            bar("frames", sum(done.values()), sum(totals.values()))
+            waiting = sum(1 for t in todo if not totals[id(t)] and not (t.error or t.swapped or t.not_started))
+            bar("frames" if not waiting else f"frames ({waiting} sessions still to index)",
+                sum(done.values()), sum(totals.values()))
         return cb
 
     if len(todo) > 1 and args.sessions_at_once > 1:
-        _drive_in_processes(todo, client.scheduler.address, args, stop, progress)
+        _drive_in_processes(todo, client.scheduler.address, args, stop, progress, prep)
         return
-    for s in todo:
+    for i, s in enumerate(todo):
         if stop.is_set():
-            s.not_started = getattr(stop, "reason", "") or "stopped"
+            s.not_started = s.not_started or getattr(stop, "reason", "") or "stopped"
+            continue
+        prep.take(i)
+        if not _runnable(s):
             continue
         try:
             s.outcome = run_archive(client, s.job, s.sources, s.args.out, **_run_kwargs(s, args),
@@ -348,14 +439,15 @@ def _drive_session(address: str, k: int, job, sources, out, kwargs) -> tuple:
         client.close()
 
 
-def _drive_in_processes(todo, address: str, args, stop, progress) -> None:
+def _drive_in_processes(todo, address: str, args, stop, progress, prep) -> None:
     """Sessions ``todo``, ``--sessions-at-once`` at a time, each driven by a process of its own
     (spawned: this process has threads; ~1 s to start) with its own client of the cluster's
     scheduler: the tasks of all of them share the cluster, and each session's merge, engine
     and CSV run on a core of their own, where in threads of one process they would share
     one (Python's GIL: ~1,000 frames a second for all sessions together on the development
     machine).  A stop (SIGINT, SIGTERM) is passed on: each driver ends after its current
-    epoch, leaving its ``OUT.partial``; a session not started by then is reported as such."""
+    epoch, leaving its ``OUT.partial``; a session not started by then is reported as such.
+    A session goes to a driver once ``prep`` has prepared it and a driver is free."""
     import multiprocessing
     import queue
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -365,8 +457,9 @@ def _drive_in_processes(todo, address: str, args, stop, progress) -> None:
 
     ctx = multiprocessing.get_context("spawn")
     code, updates = ctx.Value("i", 0), ctx.Queue()
-    callbacks = [progress(s) for s in todo]
+    callbacks = {}
     codes = {v: c for c, v in _HALT_REASONS.items()}
+    at_once = min(args.sessions_at_once, len(todo))
 
     def drain():
         while True:
@@ -376,16 +469,27 @@ def _drive_in_processes(todo, address: str, args, stop, progress) -> None:
                 return
             callbacks[k](n, total)
 
-    ex = ProcessPoolExecutor(max_workers=min(args.sessions_at_once, len(todo)), mp_context=ctx,
-                             initializer=_driver_init, initargs=(code, updates))
+    ex = ProcessPoolExecutor(max_workers=at_once, mp_context=ctx, initializer=_driver_init, initargs=(code, updates))
+    futures, pending, k = {}, set(), 0
     try:
-        with one_blas_thread_for_children():        # (the processes start with the first tasks)
-            futures = {ex.submit(_drive_session, address, k, s.job, s.sources, s.args.out, _run_kwargs(s, args)): s
-                       for k, s in enumerate(todo)}
-        pending = set(futures)
-        while pending:
+        while k < len(todo) or pending:
             if stop.is_set() and code.value == 0:
                 code.value = codes.get(getattr(stop, "reason", ""), 3)
+            while k < len(todo) and len(pending) < at_once:
+                s = todo[k]
+                if stop.is_set():
+                    s.not_started = s.not_started or getattr(stop, "reason", "") or "stopped"
+                elif prep.take(k, timeout_s=0 if pending else 0.2) is None:
+                    break                           # not yet prepared: the running ones are watched meanwhile
+                elif _runnable(s):
+                    callbacks[k] = progress(s)
+                    with one_blas_thread_for_children():    # (a process starts with its first task)
+                        f = ex.submit(_drive_session, address, k, s.job, s.sources, s.args.out, _run_kwargs(s, args))
+                    futures[f] = s
+                    pending.add(f)
+                k += 1
+            if not pending:
+                continue
             finished, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
             drain()
             for f in finished:
@@ -488,14 +592,22 @@ def run(args) -> int:
                                           pin_workers=not args.no_pin_workers)
             timing["connect_s"] = time.perf_counter() - t0
             warming = warm_workers(client, cameras)
-        for s in todo:
-            _prepare(s, HeaderReader(client, retries=args.retries))
-            print_overrides("measure-archive", s.overrides)
+        if len(todo) == 1:                          # one session: prepared first, an error is the command's
+            _prepare(todo[0], HeaderReader(client, retries=args.retries))
+            print_overrides("measure-archive", todo[0].overrides)
         with StopOnSignals() as stop:
-            if any(s.job is not None and not s.swapped for s in sessions):
-                t1 = time.perf_counter()
-                _process_all(sessions, client, args, stop, bar)
-                timing["process_s"] = time.perf_counter() - t1
+            if len(todo) > 1:                       # each session prepared when due, or the next one ahead
+                prep = _Preparation(todo, HeaderReader(client, retries=args.retries), stop,
+                                    ahead=1 if args.sessions_at_once > 1 else 0)
+            else:
+                prep = _Prepared() if todo and _runnable(todo[0]) else None
+            if prep is not None:
+                try:
+                    t1 = time.perf_counter()
+                    _process_all(sessions, client, args, stop, bar, prep)
+                    timing["process_s"] = time.perf_counter() - t1
+                finally:
+                    prep.close()
         if client is not None:
             del warming
     finally:
