@@ -54,7 +54,7 @@ class _DbBuffers:
     """A database's arrays as the kernels read them."""
 
     __slots__ = ("u64", "u32", "pstars", "key_lo", "key_hi_start", "cell_start", "cell_index",
-                 "cell_u", "size_q", "size_quantum_rad", "hip", "from_file",
+                 "cell_u", "size_q", "size_quantum_rad", "hip", "from_file", "uses",
                  "grid_n", "key_bits", "lo_bits", "bins", "n_patterns")
 
     def __init__(self, db):
@@ -101,8 +101,24 @@ class _DbBuffers:
             raise ValueError("star database arrays are inconsistent")
         self.grid_n, self.key_bits, self.lo_bits = int(db.grid_n), int(db.key_bits), int(db.lo_bits)
         self.bins, self.n_patterns = int(db.params.bins), int(db.n_patterns)
-        _into_huge_pages(self, ("key_hi_start", "key_lo", "size_q", "pstars", "u32", "cell_start", "cell_index",
-                                "cell_u", "u64", "hip"))
+        self.uses = 0
+
+    def used(self) -> None:
+        """One more solve with this database: at the ``HUGE_PAGES_AFTER_USES``-th, its arrays
+        move into huge pages (:func:`_into_huge_pages`)."""
+        self.uses += 1
+        if self.uses == HUGE_PAGES_AFTER_USES:
+            _into_huge_pages(self, _HOT_ARRAYS)
+
+
+#: A database's arrays move into huge pages at its this-many-th solve in a process: a
+#: process that solves many frames (``measure``, ``live``, a benchmark's worker) gains, a
+#: one-shot ``shipstar solve`` does not pay the copy (a blind solve's 2.3 million-pattern
+#: database is ~35 MB: ~40-140 ms to copy, more than the solve itself).
+HUGE_PAGES_AFTER_USES = 64
+#: The kernels' arrays, in the order they are laid out (the key index first).
+_HOT_ARRAYS = ("key_hi_start", "key_lo", "size_q", "pstars", "u32", "cell_start", "cell_index", "cell_u", "u64",
+               "hip")
 
 
 #: Huge page size (Linux, x86-64 and most others).
@@ -118,7 +134,8 @@ def _into_huge_pages(owner, names) -> None:
     the cells' vectors). In 4 kB pages that is ~1,500 pages, more than the TLB keeps once
     other processes have run on the core: measured in bench_identify's interleaved runs
     (each solver in its own process), the lost-in-space kernel's median took 0.25-0.29 ms
-    at 12 deg in 4 kB pages and 0.07 ms in huge pages, the same as run warm alone.
+    at 12 deg in 4 kB pages and 0.07 ms in huge pages, the same as run warm alone.  Done
+    once a database is in use (:data:`HUGE_PAGES_AFTER_USES`), not at its first solve.
     """
     import mmap
 
@@ -145,13 +162,16 @@ def _into_huge_pages(owner, names) -> None:
 
 
 def db_buffers(db) -> _DbBuffers:
-    """The kernels' view of a database (made once per database)."""
+    """The kernels' view of a database (made once per database; each call counts as a
+    use, :meth:`_DbBuffers.used`)."""
     if _LAST[0] is db:
-        return _LAST[1]
-    buf = _BUFFERS.get(db)
-    if buf is None:
-        buf = _BUFFERS[db] = _DbBuffers(db)
-    _LAST[:] = [db, buf]
+        buf = _LAST[1]
+    else:
+        buf = _BUFFERS.get(db)
+        if buf is None:
+            buf = _BUFFERS[db] = _DbBuffers(db)
+        _LAST[:] = [db, buf]
+    buf.used()
     return buf
 
 
