@@ -867,15 +867,26 @@ static PyObject *py_tap_sum(PyObject *self, PyObject *args) {
 
 /* line_filter(image, type, H, W, fill, minor_is_row, across_px, pad, terms (T, 3) i8 [source,
  * oy, ox], n_terms, kinds (K, 2) i8 [dy, dx], K, patch_idx (P,) i8 sorted flat indices, patch_values
- * (P,) in the sum type, P, across (H + 2 pad, W + 2 pad) work, out (H, W), is_double):
+ * (P,) in the sum type, P, across (2 pad + 1, W + 2 pad) work (a ring of the partial sums' rows:
+ * out row y reads rows y .. y + 2 pad, each made once, so the ring stays in the cache where the
+ * whole padded frame of them, 4.4 MB at 1024 x 1024, went to memory and back), out (H, W), is_double):
  * _matched.line_filter's sum in one call, the same sums in the same order: the pixels cast to the
  * sum type (fill off the image; a patched pixel, the last of its index, takes its value), across[p] = ((P[p - e] + P[p + e]) + P[p])
  * + P[p + 2e] + P[p - 2e] ... over the across half-width (e one step across the smear), then
  * out[p] = the terms in order: source 0 across[p + o], source 1 + j the pair (across[p + o] +
  * across[p + o + d_j]) of kind j.  Row by row (the rows a term reads stay in the cache); the
  * loops are small functions of their own, which the compiler vectorises. */
+/* The line filter's loops are compiled twice, for AVX2 and for the baseline x86-64 (SSE2),
+ * and the loader picks one for the machine (GCC's target_clones, an ifunc): 8 floats an
+ * instruction where the CPU has it.  The same IEEE additions in the same order either way
+ * (no FMA: nothing is contracted), so the sums are the same bits. */
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
+#define LF_CLONES __attribute__((noinline, target_clones("avx2", "default")))
+#else
+#define LF_CLONES __attribute__((noinline))
+#endif
 #define LF_CAST(TS, TT, SUF, PT)                                                                        \
-    static __attribute__((noinline)) void lf_cast_##TS##_##SUF(const PT *restrict r, TT *restrict d,    \
+    static LF_CLONES void lf_cast_##TS##_##SUF(const PT *restrict r, TT *restrict d,    \
                                                                Py_ssize_t n) {                     \
         for (Py_ssize_t x = 0; x < n; x++) d[x] = (TT)r[x];                                             \
     }
@@ -889,23 +900,27 @@ LF_CASTS(d, double)
 #define LF_CAST_ROW(TS, SUF, PT) lf_cast_##TS##_##SUF((const PT *)img + y * W, d, W)
 
 #define LF_VEC(TS, TT)                                                                                  \
-    static __attribute__((noinline)) void lf_sum3_##TS(TT *restrict a, const TT *restrict x,             \
+    static LF_CLONES void lf_sum3_##TS(TT *restrict a, const TT *restrict x,             \
                                                        const TT *restrict y, const TT *restrict z,       \
                                                        Py_ssize_t n) {                                   \
         for (Py_ssize_t i = 0; i < n; i++) a[i] = (x[i] + y[i]) + z[i];                                 \
     }                                                                                                   \
-    static __attribute__((noinline)) void lf_add_##TS(TT *restrict a, const TT *restrict x, Py_ssize_t n) { \
+    static LF_CLONES void lf_add_##TS(TT *restrict a, const TT *restrict x, Py_ssize_t n) { \
         for (Py_ssize_t i = 0; i < n; i++) a[i] += x[i];                                                \
     }                                                                                                   \
-    static __attribute__((noinline)) void lf_add2_##TS(TT *restrict a, const TT *restrict x,             \
+    static LF_CLONES void lf_add2_##TS(TT *restrict a, const TT *restrict x,             \
                                                        const TT *restrict y, Py_ssize_t n) {             \
         for (Py_ssize_t i = 0; i < n; i++) a[i] = (a[i] + x[i]) + y[i];                                 \
     }                                                                                                   \
-    static __attribute__((noinline)) void lf_pair_##TS(TT *restrict a, const TT *restrict x,             \
+    static LF_CLONES void lf_pair_##TS(TT *restrict a, const TT *restrict x,             \
                                                        const TT *restrict y, Py_ssize_t n) {             \
         for (Py_ssize_t i = 0; i < n; i++) a[i] = x[i] + y[i];                                          \
     }                                                                                                   \
-    static __attribute__((noinline)) void lf_add_pair_##TS(TT *restrict a, const TT *restrict x,         \
+    static LF_CLONES void lf_add3_##TS(TT *restrict a, const TT *restrict x, const TT *restrict y, \
+                                       const TT *restrict z, Py_ssize_t n) {                            \
+        for (Py_ssize_t i = 0; i < n; i++) a[i] = ((a[i] + x[i]) + y[i]) + z[i];                        \
+    }                                                                                                   \
+    static LF_CLONES void lf_add_pair_##TS(TT *restrict a, const TT *restrict x,         \
                                                            const TT *restrict y, Py_ssize_t n) {         \
         for (Py_ssize_t i = 0; i < n; i++) a[i] += x[i] + y[i];                                         \
     }
@@ -947,19 +962,29 @@ LF_VEC(d, double)
         const TT fill = (TT)fill_d;                                                                     \
         const Py_ssize_t wp = W + 2 * pad, hp = H + 2 * pad, ext = minor_is_row ? 0 : w;               \
         const Py_ssize_t nrow = minor_is_row ? 2 * w + 1 : 1;                                          \
+        const Py_ssize_t nr_ring = 2 * pad + 1;  /* the rows of A an out row reads: y .. y + 2 pad */   \
         TT *rows = malloc(sizeof(TT) * (size_t)nrow * (size_t)(wp + 2 * ext));                          \
         if (!rows) return -1;                                                                           \
-        for (Py_ssize_t pr = 0; pr < hp; pr++) {                                                        \
-            TT *restrict a = A + pr * wp;                                                               \
-            if (minor_is_row) {             /* e = one row: rows pr - w .. pr + w */                     \
-                for (Py_ssize_t j = 0; j < nrow; j++)                                                   \
-                    lf_row_##TS(img, t, H, W, pr - pad + j - w, pad, 0, fill, pidx, pval, np_, rows + j * wp);           \
-                const TT *restrict r0 = rows + w * wp;                                                  \
+        Py_ssize_t next = 0;                /* the next padded row of A to make (ring of nr_ring rows) */ \
+        Py_ssize_t cast_next = -pad - w;    /* the next image row to cast (minor_is_row) */             \
+        for (Py_ssize_t y = 0; y < H; y++) {                                                            \
+          for (; next <= y + 2 * pad && next < hp; next++) {                                              \
+            const Py_ssize_t pr = next;                                                                 \
+            TT *restrict a = A + (pr % nr_ring) * wp;                                                               \
+            if (minor_is_row) {             /* e = one row: image rows pr - pad - w .. pr - pad + w,  \
+                                               each cast once into a ring of nrow rows */               \
+                for (; cast_next <= pr - pad + w; cast_next++)                                          \
+                    lf_row_##TS(img, t, H, W, cast_next, pad, 0, fill, pidx, pval, np_,                  \
+                                rows + (((cast_next % nrow) + nrow) % nrow) * wp);                      \
+                const Py_ssize_t c0 = pr - pad;                                                         \
+                const TT *restrict r0 = rows + (((c0 % nrow) + nrow) % nrow) * wp;                      \
                 if (w == 0) { memcpy(a, r0, sizeof(TT) * (size_t)wp); continue; }                       \
-                const TT *restrict rm = r0 - wp, *restrict rp = r0 + wp;                                \
+                const TT *restrict rm = rows + ((((c0 - 1) % nrow) + nrow) % nrow) * wp;                \
+                const TT *restrict rp = rows + ((((c0 + 1) % nrow) + nrow) % nrow) * wp;                \
                 lf_sum3_##TS(a, rm, rp, r0, wp);                                                        \
                 for (Py_ssize_t j = 2; j <= w; j++) {                                                   \
-                    const TT *restrict up = r0 + j * wp, *restrict dn = r0 - j * wp;                    \
+                    const TT *restrict up = rows + ((((c0 + j) % nrow) + nrow) % nrow) * wp;            \
+                    const TT *restrict dn = rows + ((((c0 - j) % nrow) + nrow) % nrow) * wp;            \
                     lf_add_##TS(a, up, wp);                                                             \
                     lf_add_##TS(a, dn, wp);                                                             \
                 }                                                                                       \
@@ -971,22 +996,39 @@ LF_VEC(d, double)
                 for (Py_ssize_t j = 2; j <= w; j++)                                                     \
                     lf_add2_##TS(a, r0 + j, r0 - j, wp);                                                \
             }                                                                                           \
+          }                                                                                             \
+          /* out row y: a pair's two taps added first, as the reference's pair images hold them */      \
+          /* (runs of plain terms in one pass each: ((o + x) + y) + z is the same sum as three) */     \
+          TT *o = out + y * W;                                                                          \
+          for (Py_ssize_t k = 0; k < n_terms;) {                                                        \
+              const TT *p[3];                                                                           \
+              const int64_t *tm = terms + 3 * k;                                                        \
+              if (tm[0]) {                                                                              \
+                  const Py_ssize_t r = y + pad + tm[1];                                                 \
+                  const int64_t dy = kinds[2 * (tm[0] - 1)], dx = kinds[2 * (tm[0] - 1) + 1];           \
+                  const TT *pp = A + (r % nr_ring) * wp + pad + tm[2];                                  \
+                  const TT *q = A + ((r + dy) % nr_ring) * wp + pad + tm[2] + dx;                       \
+                  if (k == 0) lf_pair_##TS(o, pp, q, W);                                                \
+                  else lf_add_pair_##TS(o, pp, q, W);                                                   \
+                  k++;                                                                                  \
+                  continue;                                                                             \
+              }                                                                                         \
+              int m = 0;                                                                                \
+              while (m < 3 && k + m < n_terms && terms[3 * (k + m)] == 0) {                             \
+                  const int64_t *tj = terms + 3 * (k + m);                                              \
+                  p[m++] = A + ((y + pad + tj[1]) % nr_ring) * wp + pad + tj[2];                        \
+              }                                                                                         \
+              if (k == 0) {                                                                             \
+                  if (m == 3) lf_sum3_##TS(o, p[0], p[1], p[2], W);                                     \
+                  else if (m == 2) lf_pair_##TS(o, p[0], p[1], W);                                      \
+                  else memcpy(o, p[0], sizeof(TT) * (size_t)W);                                         \
+              } else if (m == 3) lf_add3_##TS(o, p[0], p[1], p[2], W);                                  \
+              else if (m == 2) lf_add2_##TS(o, p[0], p[1], W);                                         \
+              else lf_add_##TS(o, p[0], W);                                                             \
+              k += m;                                                                                   \
+          }                                                                                             \
         }                                                                                               \
         free(rows);                                                                                     \
-        for (Py_ssize_t y = 0; y < H; y++) {    /* a pair's two taps added first, as the reference's  \
-                                                   pair images hold them */                             \
-            TT *o = out + y * W;                                                                        \
-            for (Py_ssize_t k = 0; k < n_terms; k++) {                                                  \
-                const int64_t *tm = terms + 3 * k;                                                      \
-                const TT *p = A + (y + pad + tm[1]) * wp + pad + tm[2];                                 \
-                if (tm[0]) {                                                                            \
-                    const TT *q = p + kinds[2 * (tm[0] - 1)] * wp + kinds[2 * (tm[0] - 1) + 1];         \
-                    if (k == 0) lf_pair_##TS(o, p, q, W);                                               \
-                    else lf_add_pair_##TS(o, p, q, W);                                                  \
-                } else if (k == 0) memcpy(o, p, sizeof(TT) * (size_t)W);                                \
-                else lf_add_##TS(o, p, W);                                                              \
-            }                                                                                           \
-        }                                                                                               \
         return 0;                                                                                       \
     }
 LINE_FILTER(f, float)
@@ -1007,7 +1049,7 @@ static PyObject *py_line_filter(PyObject *self, PyObject *args) {
     int ok = t >= 0 && h > 0 && w > 0 && across_px >= 0 && pad > across_px && n_terms > 0 && n_kinds >= 0
              && tb.len == (Py_ssize_t)(3 * n_terms * sizeof(int64_t))
              && kb.len >= (Py_ssize_t)(2 * n_kinds * sizeof(int64_t))
-             && ab.len == (Py_ssize_t)((size_t)(h + 2 * pad) * (size_t)(w + 2 * pad) * item)
+             && ab.len >= (Py_ssize_t)((size_t)(2 * pad + 1) * (size_t)(w + 2 * pad) * item)
              && ob.len == (Py_ssize_t)((size_t)h * (size_t)w * item)
              && n_patch >= 0 && pib.len >= (Py_ssize_t)(n_patch * sizeof(int64_t))
              && pvb.len >= (Py_ssize_t)((size_t)n_patch * item);

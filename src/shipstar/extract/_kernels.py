@@ -278,7 +278,7 @@ def line_filter(image, fill_value: float, minor_is_row: bool, across_px: int, pa
             raise ValueError("line_filter: a patched pixel off the image")
         if not n_patch:
             p_idx, p_val = np.zeros(1, np.int64), np.zeros(1, dtype)
-    across = scratch("kernels.line_filter.across", (image.shape[0] + 2 * pad, image.shape[1] + 2 * pad), dtype)
+    across = scratch("kernels.line_filter.across", (2 * pad + 1, image.shape[1] + 2 * pad), dtype)   # a ring of rows
     _ckernels.line_filter(image, code, *image.shape, float(fill_value), bool(minor_is_row), int(across_px),
                           int(pad), terms, len(terms), kinds if len(kinds) else np.zeros((1, 2), np.int64),
                           len(kinds), p_idx, p_val, n_patch, across, out, dtype == np.float64)
