@@ -650,13 +650,24 @@ static PyObject *py_mesh_at(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+/* The pixel loops (the line filter's, the candidates' threshold) are compiled twice, for AVX2
+ * and for the baseline x86-64 (SSE2), and the loader picks one for the machine (GCC's
+ * target_clones, an ifunc): 8 floats or 16 integers an instruction where the CPU has it.  The
+ * same IEEE operations in the same order either way (no FMA: nothing is contracted), so the
+ * results are the same bits. */
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
+#define LF_CLONES __attribute__((noinline, target_clones("avx2", "default")))
+#else
+#define LF_CLONES __attribute__((noinline))
+#endif
+
 /* ------------------------------------------------------------------ detection on candidate pixels */
 
 /* One function per pixel type T (image and block levels of the same type, as
  * _detect._level_as gives them): candidates, local maxima, 3 x 3 neighbours. */
 #define DETECT_KERNELS(SUF, T)                                                                          \
     /* mask[c] = row[c] > thr[c]: a branch-free loop of its own, which the compiler vectorises */      \
-    static __attribute__((noinline)) void above_##SUF(const T *restrict row, const T *restrict thr,      \
+    static LF_CLONES void above_##SUF(const T *restrict row, const T *restrict thr,                     \
                                                       uint8_t *restrict mask, Py_ssize_t n) {            \
         for (Py_ssize_t j = 0; j < n; j++) mask[j] = row[j] > thr[j];                                   \
     }                                                                                                   \
@@ -876,15 +887,6 @@ static PyObject *py_tap_sum(PyObject *self, PyObject *args) {
  * out[p] = the terms in order: source 0 across[p + o], source 1 + j the pair (across[p + o] +
  * across[p + o + d_j]) of kind j.  Row by row (the rows a term reads stay in the cache); the
  * loops are small functions of their own, which the compiler vectorises. */
-/* The line filter's loops are compiled twice, for AVX2 and for the baseline x86-64 (SSE2),
- * and the loader picks one for the machine (GCC's target_clones, an ifunc): 8 floats an
- * instruction where the CPU has it.  The same IEEE additions in the same order either way
- * (no FMA: nothing is contracted), so the sums are the same bits. */
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
-#define LF_CLONES __attribute__((noinline, target_clones("avx2", "default")))
-#else
-#define LF_CLONES __attribute__((noinline))
-#endif
 #define LF_CAST(TS, TT, SUF, PT)                                                                        \
     static LF_CLONES void lf_cast_##TS##_##SUF(const PT *restrict r, TT *restrict d,    \
                                                                Py_ssize_t n) {                     \
