@@ -270,8 +270,10 @@ class _Preparation:
         self._taken = 0
         self._fill()
 
-    def _fill(self) -> None:
-        while len(self._futures) < min(len(self.sessions), self._taken + self.ahead):
+    def _fill(self, upto: int | None = None) -> None:
+        """Sessions set going up to ``upto`` (default: ``ahead`` beyond the last taken)."""
+        upto = self._taken + self.ahead if upto is None else upto
+        while len(self._futures) < min(len(self.sessions), upto):
             self._futures.append(self._pool.submit(self._one, self.sessions[len(self._futures)]))
 
     def _one(self, s) -> None:
@@ -292,8 +294,7 @@ class _Preparation:
         then the next ones set going."""
         from concurrent.futures import TimeoutError as FutureTimeout
 
-        while len(self._futures) <= i:
-            self._futures.append(self._pool.submit(self._one, self.sessions[len(self._futures)]))
+        self._fill(i + 1)
         try:
             self._futures[i].result(timeout=timeout_s)
         except FutureTimeout:
@@ -347,7 +348,7 @@ def _process_all(sessions, client, args, stop, bar, prep) -> None:
         def cb(n, total):
             done[id(s)] = n
             waiting = sum(1 for t in todo if not totals[id(t)] and not (t.error or t.swapped or t.not_started))
-            bar("frames" if not waiting else f"frames ({waiting} sessions still to index)",
+            bar("frames" if not waiting else f"frames ({waiting} more sessions to come)",
                 sum(done.values()), sum(totals.values()))
         return cb
 

@@ -265,19 +265,12 @@ def line_filter(image, fill_value: float, minor_is_row: bool, across_px: int, pa
     if (dtype not in (np.float32, np.float64) or out.shape != image.shape or not out.flags.c_contiguous
             or terms.ndim != 2 or terms.shape[1] != 3 or not len(terms)):
         raise ValueError("line_filter: bad arrays")
-    if patch is None:
-        p_idx, p_val = np.zeros(1, np.int64), np.zeros(1, dtype)
-        n_patch = 0
-    else:
-        p_idx = np.asarray(patch[0], dtype=np.int64).reshape(-1)
-        p_val = np.broadcast_to(np.asarray(patch[1]).astype(dtype, casting="same_kind"), p_idx.shape)
-        order = np.argsort(p_idx, kind="stable")      # a repeated index: the last value, as numpy assigns
-        p_idx, p_val = np.ascontiguousarray(p_idx[order]), np.ascontiguousarray(p_val[order])
-        n_patch = len(p_idx)
-        if n_patch and not (0 <= p_idx[0] and p_idx[-1] < image.size):
-            raise ValueError("line_filter: a patched pixel off the image")
-        if not n_patch:
-            p_idx, p_val = np.zeros(1, np.int64), np.zeros(1, dtype)
+    p_idx, p_val, n_patch = np.zeros(1, np.int64), np.zeros(1, dtype), 0      # no patch (placeholders)
+    if patch is not None and np.size(patch[0]):  # sorted (the kernel checks them: sorted, on the image)
+        idx = np.asarray(patch[0], dtype=np.int64).reshape(-1)
+        values = np.broadcast_to(np.asarray(patch[1]).astype(dtype, casting="same_kind"), idx.shape)
+        order = np.argsort(idx, kind="stable")        # a repeated index: the last value, as numpy assigns
+        p_idx, p_val, n_patch = np.ascontiguousarray(idx[order]), np.ascontiguousarray(values[order]), idx.size
     across = scratch("kernels.line_filter.across", (2 * pad + 1, image.shape[1] + 2 * pad), dtype)   # a ring of rows
     _ckernels.line_filter(image, code, *image.shape, float(fill_value), bool(minor_is_row), int(across_px),
                           int(pad), terms, len(terms), kinds if len(kinds) else np.zeros((1, 2), np.int64),
