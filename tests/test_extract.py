@@ -700,6 +700,33 @@ def test_compiled_detection_passes_match_numpy():
                      axis=1)))
 
 
+def test_compiled_mesh_sums_and_value_step_are_the_numpy_reference_bit_for_bit():
+    """The background mesh's box-noise sums (3 x 3 around a strided grid) and the samples'
+    quantisation step, compiled, against the NumPy code they replaced (kept as the
+    reference): the same float64 values on every pixel type, sizes not a multiple of the
+    step, float frames whose sums depend on the order of the additions."""
+    from shipstar.extract._background import _box_sums_python, _value_step_python
+    from shipstar.extract._kernels import grid_box_sums, value_step
+
+    rng = np.random.default_rng(29)
+    for dtype in (np.uint8, np.int8, np.uint16, np.int16, np.uint32, np.int32, np.int64, np.float32, np.float64):
+        for shape, step in (((64, 64), 3), ((1024, 1024), 16), ((37, 91), 5), ((200, 120), 7)):
+            if np.issubdtype(dtype, np.floating):
+                image = (rng.normal(0.0, 1.0, shape) * 10.0 ** rng.uniform(-3, 6, shape)).astype(dtype)
+            else:
+                info = np.iinfo(dtype)
+                image = rng.integers(max(info.min, -2 ** 40), min(info.max, 2 ** 40), size=shape).astype(dtype)
+            n_rows, n_cols = np.arange(1, shape[0] - 1, step).size, np.arange(1, shape[1] - 1, step).size
+            got = grid_box_sums(image, step, n_rows, n_cols)
+            np.testing.assert_array_equal(got, _box_sums_python(image, step, n_rows, n_cols),
+                                          err_msg=f"{dtype} {shape} {step}")
+    for samples in (np.sort(rng.normal(0, 1, (32, 32, 64)), axis=-1),
+                    np.sort(np.round(rng.normal(0, 3, (8, 8, 16))) / 4096.0, axis=-1),
+                    np.full((4, 4, 9), 7.0), np.zeros((3, 3, 1)), np.sort(rng.integers(0, 3, (5, 64)), axis=-1)):
+        assert value_step(samples) == _value_step_python(samples)
+    assert value_step(np.full((2, 5), 1.0)) == 0.0
+
+
 def test_saturation_test_in_the_pixels_own_type_is_the_float_comparison():
     """``at_or_above`` compares integer frames against ceil(level) in their own type (no
     float64 copy of the frame): the same mask as ``image >= level`` for every integer

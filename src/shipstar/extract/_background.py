@@ -15,7 +15,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from shipstar.extract._kernels import block_stats, median3, mesh_at
+from shipstar.extract._kernels import block_stats, grid_box_sums, median3, mesh_at, value_step
 
 __all__ = ["Mesh", "estimate_mesh", "median"]
 
@@ -108,6 +108,11 @@ def _value_step(sorted_samples):
     Without it a block of a coarsely quantised frame whose samples mostly share one value
     would get a zero MAD, hence a zero clip and a zero noise.
     """
+    return value_step(sorted_samples)                 # compiled: one pass, no difference array
+
+
+def _value_step_python(sorted_samples):
+    """:func:`_value_step` in NumPy (the compiled kernel's reference)."""
     diff = np.diff(sorted_samples, axis=-1)
     step = diff[diff > 0]
     return float(step.min()) if step.size else 0.0
@@ -158,11 +163,19 @@ def _box_noise_factor(image, mesh, max_samples=4096):
     rows, cols = np.arange(1, height - 1, step), np.arange(1, width - 1, step)
     if rows.size * cols.size < 16:
         return 1.0
-    total = np.zeros((rows.size, cols.size))
-    for dr in (-1, 0, 1):
-        for dc in (-1, 0, 1):
-            total += image[dr + 1:height - 1 + dr:step, dc + 1:width - 1 + dc:step][:rows.size, :cols.size]
+    total = grid_box_sums(image, step, rows.size, cols.size)     # compiled: _box_sums_python's sums
     bg, noise = mesh.on_grid(cols, rows)
     z = ((total - 9.0 * bg) / (3.0 * noise)).ravel()
     z -= median(z)
     return float(max(1.0, 1.4826 * median(np.abs(z))))
+
+
+def _box_sums_python(image, step, n_rows, n_cols):
+    """The 3 x 3 sums of :func:`_box_noise_factor` in NumPy (the compiled kernel's reference):
+    nine strided slices added to zeros in order."""
+    height, width = image.shape
+    total = np.zeros((n_rows, n_cols))
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            total += image[dr + 1:height - 1 + dr:step, dc + 1:width - 1 + dc:step][:n_rows, :n_cols]
+    return total

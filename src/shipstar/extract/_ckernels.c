@@ -11,6 +11,8 @@
  *   gauss_normal      its normal equations
  *   block_stats       median, MAD and clipped RMS of the background mesh's block samples
  *   median3           3 x 3 median filter of the block grid
+ *   grid_box_sums     3 x 3 sums around a regular grid of pixels (the mesh's box-noise factor)
+ *   value_step        smallest positive step between sorted block samples
  *   mesh_at           bilinear background and noise at pixel positions
  *   candidates        pixels above their block's level (one pass), as sorted flat indices
  *   local_max         candidates that are the maximum of their 3 x 3 neighbourhood
@@ -762,6 +764,82 @@ static int type_index(const char *code) {
     default: CALL_U8(f64, double); break;                                                               \
     }
 
+/* grid_box_sums(image, out (nr, nc) f8, H, W, step, nr, nc, type): out[i, j] = the 3 x 3 sum
+ * around pixel (1 + step i, 1 + step j), in float64 from 0, row by row (dr = -1, 0, 1), each
+ * row left to right: _background._box_noise_factor's nine strided slices added in their
+ * order, the same sums. */
+#define GRID_BOX_SUMS(SUF, T)                                                                           \
+    static void grid_box_sums_##SUF(const T *img, double *out, Py_ssize_t w, Py_ssize_t step,            \
+                                    Py_ssize_t nr, Py_ssize_t nc) {                                     \
+        for (Py_ssize_t i = 0; i < nr; i++) {                                                           \
+            const T *c0 = img + (1 + step * i) * w + 1;                                                 \
+            for (Py_ssize_t j = 0; j < nc; j++) {                                                       \
+                const T *c = c0 + step * j;                                                             \
+                double t = 0.0;                                                                         \
+                for (int dr = -1; dr <= 1; dr++)                                                        \
+                    for (int dc = -1; dc <= 1; dc++) t += (double)c[dr * w + dc];                       \
+                out[i * nc + j] = t;                                                                    \
+            }                                                                                           \
+        }                                                                                               \
+    }
+GRID_BOX_SUMS(u8, uint8_t)
+GRID_BOX_SUMS(i8, int8_t)
+GRID_BOX_SUMS(u16, uint16_t)
+GRID_BOX_SUMS(i16, int16_t)
+GRID_BOX_SUMS(u32, uint32_t)
+GRID_BOX_SUMS(i32, int32_t)
+GRID_BOX_SUMS(u64, uint64_t)
+GRID_BOX_SUMS(i64, int64_t)
+GRID_BOX_SUMS(f32, float)
+GRID_BOX_SUMS(f64, double)
+
+static PyObject *py_grid_box_sums(PyObject *self, PyObject *args) {
+    Py_buffer ib, ob;
+    Py_ssize_t h, w, step, nr, nc;
+    const char *code;
+    if (!PyArg_ParseTuple(args, "y*w*nnnnns", &ib, &ob, &h, &w, &step, &nr, &nc, &code)) return NULL;
+    int t = type_index(code);
+    int ok = t >= 0 && step >= 1 && nr >= 0 && nc >= 0 && ob.len == (Py_ssize_t)(nr * nc * sizeof(double))
+             && (nr == 0 || 1 + step * (nr - 1) + 1 < h) && (nc == 0 || 1 + step * (nc - 1) + 1 < w);
+    if (ok) {
+        Py_BEGIN_ALLOW_THREADS
+#define CALL(SUF, T) grid_box_sums_##SUF((const T *)ib.buf, (double *)ob.buf, w, step, nr, nc)
+        DISPATCH(t, CALL)
+#undef CALL
+        Py_END_ALLOW_THREADS
+    }
+    PyBuffer_Release(&ib); PyBuffer_Release(&ob);
+    if (!ok) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "grid_box_sums: bad sizes");
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
+/* value_step(samples (n, k) f8 sorted along rows, n, k) -> the smallest positive difference of
+ * consecutive samples in a row (0.0 when none): _background._value_step. */
+static PyObject *py_value_step(PyObject *self, PyObject *args) {
+    Py_buffer sb;
+    Py_ssize_t n, k;
+    if (!PyArg_ParseTuple(args, "y*nn", &sb, &n, &k)) return NULL;
+    if (n < 0 || k < 0 || sb.len != (Py_ssize_t)(n * k * sizeof(double))) {
+        PyBuffer_Release(&sb);
+        PyErr_SetString(PyExc_ValueError, "value_step: bad sizes");
+        return NULL;
+    }
+    const double *s = sb.buf;
+    double best = INFINITY;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t r = 0; r < n; r++)
+        for (Py_ssize_t i = 0; i + 1 < k; i++) {
+            double d = s[r * k + i + 1] - s[r * k + i];
+            if (d > 0.0 && d < best) best = d;
+        }
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&sb);
+    return PyFloat_FromDouble(isinf(best) ? 0.0 : best);
+}
+
 /* candidates(image, levels (nby, nbx), out_idx (H W,) i8, H, W, block, nby, nbx, type) -> count */
 static PyObject *py_candidates(PyObject *self, PyObject *args) {
     Py_buffer ib, lb, ob;
@@ -1243,6 +1321,8 @@ static PyMethodDef methods[] = {
     {"gauss_fit", py_gauss_fit, METH_VARARGS, "Gauss-Newton fits of the pixel-integrated Gaussian."},
     {"gauss_normal", py_gauss_normal, METH_VARARGS, "Normal equations of the pixel-integrated Gaussian."},
     {"block_stats", py_block_stats, METH_VARARGS, "Median, MAD and clipped RMS of block samples."},
+    {"grid_box_sums", py_grid_box_sums, METH_VARARGS, "3 x 3 sums around a regular grid of pixels."},
+    {"value_step", py_value_step, METH_VARARGS, "Smallest positive step between sorted samples."},
     {"median3", py_median3, METH_VARARGS, "3 x 3 median of a grid, edges extended."},
     {"mesh_at", py_mesh_at, METH_VARARGS, "Bilinear background and noise between block centres."},
     {"candidates", py_candidates, METH_VARARGS, "Flat indices of the pixels above their block's level."},

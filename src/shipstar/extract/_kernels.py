@@ -9,8 +9,10 @@ Each wrapper hands its C kernel C-contiguous arrays of the dtypes it reads and w
   arithmetic of ``_streak._jacobian`` / ``fit_streaks`` in another summation order;
 - :func:`gauss_fit` / :func:`gauss_normal`: the point stars' pixel-integrated Gaussian,
   its Gauss-Newton fit (``_fit.fit_gaussian``) star by star, and its normal equations;
-- :func:`block_stats`, :func:`median3`, :func:`mesh_at`: the background mesh (block
-  medians, MADs and clipped RMS; its 3 x 3 median filter; bilinear values);
+- :func:`block_stats`, :func:`median3`, :func:`mesh_at`, :func:`grid_box_sums`,
+  :func:`value_step`: the background mesh (block medians, MADs and clipped RMS; its 3 x 3
+  median filter; bilinear values; the 3 x 3 sums of its box-noise factor; the samples'
+  quantisation step);
 - :func:`candidates`, :func:`local_max`, :func:`neighbours`: detection on the pixels
   above a block-wise level (any integer or float pixel type);
 - :func:`tap_sum`: the line filter's sum of shifted partial-sum images;
@@ -30,7 +32,8 @@ import numpy as np
 from shipstar.extract import _ckernels
 from shipstar.extract._scratch import scratch
 
-__all__ = ["streak_equations", "streak_fit", "gauss_fit", "gauss_normal", "block_stats", "median3", "mesh_at",
+__all__ = ["streak_equations", "streak_fit", "gauss_fit", "gauss_normal", "block_stats", "grid_box_sums",
+           "value_step", "median3", "mesh_at",
            "candidates", "local_max", "neighbours", "tap_sum", "line_filter", "box3", "label_runs", "suppress", "erf"]
 
 _TABLE_STEPS = 1024
@@ -142,6 +145,23 @@ def block_stats(samples, quantum_adu: float):
     med, mad, rms = (np.empty(shape) for _ in range(3))
     _ckernels.block_stats(samples, med, mad, rms, med.size, k, float(quantum_adu))
     return med, mad, rms
+
+
+def grid_box_sums(image, step: int, n_rows: int, n_cols: int):
+    """(n_rows, n_cols) float64: the 3 x 3 sums of ``image`` (H, W) around the pixels
+    ``(1 + step i, 1 + step j)``, added from 0 row by row, each row left to right."""
+    image, code = _pixels(image)
+    out = np.empty((int(n_rows), int(n_cols)))
+    _ckernels.grid_box_sums(image, out, *image.shape, int(step), int(n_rows), int(n_cols), code)
+    return out
+
+
+def value_step(sorted_samples) -> float:
+    """Smallest positive difference between consecutive values of ``sorted_samples`` (..., k),
+    sorted along the last axis (0.0 when there is none)."""
+    s = _f8(sorted_samples)
+    k = s.shape[-1]
+    return _ckernels.value_step(s, s.size // k if k else 0, k)
 
 
 def median3(grid):
