@@ -91,7 +91,10 @@ class Watcher:
             self._ready.set()
             for change, path in changes:
                 p = Path(path)
-                size = p.stat().st_size if p.is_file() else -1
+                try:                        # a temporary file may be renamed between the event and here
+                    size = p.stat().st_size if p.is_file() else -1
+                except FileNotFoundError:
+                    size = -1
                 self.events.append((t, change, p.relative_to(self.root).as_posix(), size))
             track = self.root / "track.csv"
             if track.is_file():
@@ -191,7 +194,7 @@ def test_replay_at_speed_1_keeps_the_frame_times(session_dir, track_table, tmp_p
 
 def test_no_cumulative_drift_and_speed_scales_time(tmp_path):
     """60 small frames over 2.95 session seconds at speed 4: each appears at its scaled time
-    within the tolerance, and the fitted clock rate is 1/4 to 0.5 %."""
+    within the tolerance, the last ones with no drift, and the fitted clock rate is 1/4 to 2 %."""
     src = tmp_path / "src"
     src.mkdir()
     frames = []
@@ -213,7 +216,11 @@ def test_no_cumulative_drift_and_speed_scales_time(tmp_path):
           f"max lateness {result.max_late_ms:.2f} ms")
     assert np.abs(dev_s).max() < TOLERANCE_S
     assert abs(dev_s[-10:].mean()) < 0.5 * TOLERANCE_S          # no drift at the end
-    assert rate == pytest.approx(1.0, abs=0.005)
+    # the rate of the file events' times, fitted over 0.74 s: their delivery jitters by ~5-15 ms
+    # on a loaded host (1.0055-1.0089 seen in 3 of 10 runs at 0.5 %); a replay that slept from
+    # its last write instead of its schedule drifts by its overshoot every frame (1 ms at
+    # 12.5 ms spacing: 8 %), far beyond 2 %
+    assert rate == pytest.approx(1.0, abs=0.02)
     assert result.frames_written == 60 and result.speed == 4.0
     _assert_whole_frames_only(to_dir, plan, 60)
 
