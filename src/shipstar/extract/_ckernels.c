@@ -657,8 +657,8 @@ static PyObject *py_mesh_at(PyObject *self, PyObject *args) {
  * target_clones, an ifunc): 8 floats or 16 integers an instruction where the CPU has it.  The
  * same IEEE operations in the same order either way (no FMA: nothing is contracted), so the
  * results are the same bits. */
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
-#define LF_CLONES __attribute__((noinline, target_clones("avx2", "default")))
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__) && defined(__GLIBC__)
+#define LF_CLONES __attribute__((noinline, target_clones("avx2", "default")))   /* (ifunc: glibc, not musl) */
 #else
 #define LF_CLONES __attribute__((noinline))
 #endif
