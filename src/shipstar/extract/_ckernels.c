@@ -658,9 +658,9 @@ static PyObject *py_mesh_at(PyObject *self, PyObject *args) {
  * same IEEE operations in the same order either way (no FMA: nothing is contracted), so the
  * results are the same bits. */
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__) && defined(__GLIBC__)
-#define LF_CLONES __attribute__((noinline, target_clones("avx2", "default")))   /* (ifunc: glibc, not musl) */
+#define PIXEL_LOOP_CLONES __attribute__((noinline, target_clones("avx2", "default")))   /* (ifunc: glibc, not musl) */
 #else
-#define LF_CLONES __attribute__((noinline))
+#define PIXEL_LOOP_CLONES __attribute__((noinline))
 #endif
 
 /* ------------------------------------------------------------------ detection on candidate pixels */
@@ -669,7 +669,7 @@ static PyObject *py_mesh_at(PyObject *self, PyObject *args) {
  * _detect._level_as gives them): candidates, local maxima, 3 x 3 neighbours. */
 #define DETECT_KERNELS(SUF, T)                                                                          \
     /* mask[c] = row[c] > thr[c]: a branch-free loop of its own, which the compiler vectorises */      \
-    static LF_CLONES void above_##SUF(const T *restrict row, const T *restrict thr,                     \
+    static PIXEL_LOOP_CLONES void above_##SUF(const T *restrict row, const T *restrict thr,                     \
                                                       uint8_t *restrict mask, Py_ssize_t n) {            \
         for (Py_ssize_t j = 0; j < n; j++) mask[j] = row[j] > thr[j];                                   \
     }                                                                                                   \
@@ -966,7 +966,7 @@ static PyObject *py_tap_sum(PyObject *self, PyObject *args) {
  * across[p + o + d_j]) of kind j.  Row by row (the rows a term reads stay in the cache); the
  * loops are small functions of their own, which the compiler vectorises. */
 #define LF_CAST(TS, TT, SUF, PT)                                                                        \
-    static LF_CLONES void lf_cast_##TS##_##SUF(const PT *restrict r, TT *restrict d,    \
+    static PIXEL_LOOP_CLONES void lf_cast_##TS##_##SUF(const PT *restrict r, TT *restrict d,    \
                                                                Py_ssize_t n) {                     \
         for (Py_ssize_t x = 0; x < n; x++) d[x] = (TT)r[x];                                             \
     }
@@ -980,27 +980,27 @@ LF_CASTS(d, double)
 #define LF_CAST_ROW(TS, SUF, PT) lf_cast_##TS##_##SUF((const PT *)img + y * W, d, W)
 
 #define LF_VEC(TS, TT)                                                                                  \
-    static LF_CLONES void lf_sum3_##TS(TT *restrict a, const TT *restrict x,             \
+    static PIXEL_LOOP_CLONES void lf_sum3_##TS(TT *restrict a, const TT *restrict x,             \
                                                        const TT *restrict y, const TT *restrict z,       \
                                                        Py_ssize_t n) {                                   \
         for (Py_ssize_t i = 0; i < n; i++) a[i] = (x[i] + y[i]) + z[i];                                 \
     }                                                                                                   \
-    static LF_CLONES void lf_add_##TS(TT *restrict a, const TT *restrict x, Py_ssize_t n) { \
+    static PIXEL_LOOP_CLONES void lf_add_##TS(TT *restrict a, const TT *restrict x, Py_ssize_t n) { \
         for (Py_ssize_t i = 0; i < n; i++) a[i] += x[i];                                                \
     }                                                                                                   \
-    static LF_CLONES void lf_add2_##TS(TT *restrict a, const TT *restrict x,             \
+    static PIXEL_LOOP_CLONES void lf_add2_##TS(TT *restrict a, const TT *restrict x,             \
                                                        const TT *restrict y, Py_ssize_t n) {             \
         for (Py_ssize_t i = 0; i < n; i++) a[i] = (a[i] + x[i]) + y[i];                                 \
     }                                                                                                   \
-    static LF_CLONES void lf_pair_##TS(TT *restrict a, const TT *restrict x,             \
+    static PIXEL_LOOP_CLONES void lf_pair_##TS(TT *restrict a, const TT *restrict x,             \
                                                        const TT *restrict y, Py_ssize_t n) {             \
         for (Py_ssize_t i = 0; i < n; i++) a[i] = x[i] + y[i];                                          \
     }                                                                                                   \
-    static LF_CLONES void lf_add3_##TS(TT *restrict a, const TT *restrict x, const TT *restrict y, \
+    static PIXEL_LOOP_CLONES void lf_add3_##TS(TT *restrict a, const TT *restrict x, const TT *restrict y, \
                                        const TT *restrict z, Py_ssize_t n) {                            \
         for (Py_ssize_t i = 0; i < n; i++) a[i] = ((a[i] + x[i]) + y[i]) + z[i];                        \
     }                                                                                                   \
-    static LF_CLONES void lf_add_pair_##TS(TT *restrict a, const TT *restrict x,         \
+    static PIXEL_LOOP_CLONES void lf_add_pair_##TS(TT *restrict a, const TT *restrict x,         \
                                                            const TT *restrict y, Py_ssize_t n) {         \
         for (Py_ssize_t i = 0; i < n; i++) a[i] += x[i] + y[i];                                         \
     }
