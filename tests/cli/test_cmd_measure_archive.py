@@ -16,6 +16,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 
 import numpy as np
@@ -291,6 +292,32 @@ def test_several_sessions_in_one_call(root, cluster):
     assert summaries["n2"]["sensors"]["A2"]["n_frames"] == 12
     pids = {s["driver_pid"] for s in summaries.values()}
     assert len(pids) == 2 and proc.pid not in pids
+
+
+def test_a_client_connects_while_another_cancels_keys(cluster):
+    """distributed's handshake fails (a bare AssertionError) when the scheduler sends a new
+    client's first reply in one batch with its notice of keys another client cancelled; CI
+    met it as a session's driver connected while the session before it stopped.  Here ~7 %
+    of plain connections fail so; :func:`open_client` connects every time."""
+    from shipstar.pipeline._archive import open_client
+
+    lc, client = cluster
+    stop = threading.Event()
+
+    def cancel_in_a_loop():
+        while not stop.is_set():
+            client.cancel([client.submit(time.sleep, 0.02, pure=False) for _ in range(3)])
+
+    th = threading.Thread(target=cancel_in_a_loop, daemon=True)
+    th.start()
+    try:
+        for _ in range(60):
+            c = open_client(lc.scheduler_address, timeout_s=10)
+            assert c.status == "running"
+            c.close()
+    finally:
+        stop.set()
+        th.join()
 
 
 def test_sigterm_stops_every_session_and_names_those_not_started(root, cluster):

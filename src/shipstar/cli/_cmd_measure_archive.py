@@ -418,16 +418,14 @@ def _drive_session(address: str, k: int, job, sources, out, kwargs) -> tuple:
     pid)``, or ``("not started", reason, pid)`` when the command was stopped first."""
     import os
 
-    from distributed import Client
-
-    from shipstar.pipeline._archive import run_archive
+    from shipstar.pipeline._archive import open_client, run_archive
 
     halt, updates = _DRIVER["halt"], _DRIVER["updates"]
     if halt.is_set():
         return "not started", halt.reason, os.getpid()
     try:
-        client = Client(address, set_as_default=False, timeout=30)
-    except (OSError, TimeoutError, ValueError) as exc:
+        client = open_client(address, timeout_s=30)
+    except Exception as exc:                # OSError, TimeoutError, ValueError, or Dask's own
         why = " ".join(str(exc).split()) or type(exc).__name__
         return "error", f"its driver process could not reach the Dask scheduler at {address} ({why})", os.getpid()
     try:
@@ -500,6 +498,11 @@ def _drive_in_processes(todo, address: str, args, stop, progress, prep) -> None:
                 except BrokenProcessPool:
                     s.error = "its driver process died (out of memory, or killed); OUT.partial holds the rows it " \
                               "wrote, --resume continues it"
+                    continue
+                except Exception as exc:            # (not expected: the driver returns its errors)
+                    why = " ".join(str(exc).split()) or type(exc).__name__
+                    s.error = f"its driver process failed ({why}); OUT.partial holds the rows it wrote, --resume " \
+                              "continues it"
                     continue
                 if what == "ok":
                     s.outcome = value

@@ -640,6 +640,53 @@ def warm_here(cameras) -> None:
     _warm(tuple(cameras))
 
 
+#: Attempts at one client's connection to a scheduler (:func:`open_client`).
+CONNECT_ATTEMPTS = 5
+
+
+def open_client(address, *, timeout_s: float | None):
+    """A ``distributed.Client`` of the scheduler (or cluster) ``address``, not the default one,
+    connected within ``timeout_s`` (None: Dask's configured connect time-out).
+
+    distributed (2026.8, ``Client._ensure_connected``) asserts that the scheduler's first
+    reply to a new client comes alone.  The scheduler batches what it sends a client over
+    2 ms and tells every client of the keys any client cancels, so a client that registers
+    just as another cancels fails with a bare AssertionError.  Seen in CI: a session's
+    driver connected as the session before it stopped.  Here, 27 of 400 connections failed
+    so while another client cancelled in a loop.  The half-made client is closed and a new
+    connection tried, up to :data:`CONNECT_ATTEMPTS` times.
+
+    Raises
+    ------
+    ConnectionError
+        Every attempt failed so (the OS and time-out errors of ``Client`` pass through).
+    """
+    from distributed import Client
+
+    for _ in range(CONNECT_ATTEMPTS):
+        try:
+            return Client(address, set_as_default=False, **({} if timeout_s is None else {"timeout": timeout_s}))
+        except AssertionError as exc:
+            _close_half_made(exc, Client)
+    raise ConnectionError(f"the scheduler's reply to a new client came out of order {CONNECT_ATTEMPTS} times")
+
+
+def _close_half_made(exc: BaseException, client_type) -> None:
+    """Close the client whose constructor raised ``exc`` (its loop thread would otherwise run
+    on, and its finaliser wait up to twice the time-out at exit)."""
+    tb, made = exc.__traceback__, None
+    while tb is not None:
+        candidate = tb.tb_frame.f_locals.get("self")
+        if isinstance(candidate, client_type):
+            made = candidate
+        tb = tb.tb_next
+    if made is not None:
+        try:
+            made.close(timeout=5)
+        except Exception:                   # (it is being dropped: nothing more to do)
+            pass
+
+
 def connect(scheduler: str | None = None, *, workers: int = 2, threads_per_worker: int = 1,
             timeout_s: float = 10.0, start_method: str | None = None, pin_workers: bool = True):
     """A Dask client: to ``scheduler`` (``tcp://HOST:PORT``), else to a new LocalCluster of
@@ -658,13 +705,13 @@ def connect(scheduler: str | None = None, *, workers: int = 2, threads_per_worke
     import signal
 
     import dask
-    from distributed import Client, LocalCluster
+    from distributed import LocalCluster
 
     from shipstar.pipeline._measure import one_blas_thread_for_children
 
     if scheduler:
         try:
-            return Client(scheduler, timeout=timeout_s, set_as_default=False), None
+            return open_client(scheduler, timeout_s=timeout_s), None
         except (OSError, TimeoutError, ValueError, TypeError) as exc:
             raise ShipstarError(f"cannot reach the Dask scheduler at {scheduler} within {timeout_s:g} s "
                                 f"({_one_line(exc)})") from None
@@ -686,7 +733,7 @@ def connect(scheduler: str | None = None, *, workers: int = 2, threads_per_worke
     finally:
         if main:        # None: a handler not set from Python, which cannot be put back
             signal.signal(signal.SIGINT, signal.SIG_DFL if old is None else old)
-    client = Client(cluster, set_as_default=False)
+    client = open_client(cluster, timeout_s=None)
     cores = _cores()
     if pin_workers and cores and int(workers) <= len(cores):
         from shipstar.pipeline._pin import PinToCore
