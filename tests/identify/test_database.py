@@ -188,6 +188,72 @@ def test_stored_kernel_arrays_that_are_not_the_stars_are_refused(tmp_cache):
             _DbBuffers(db)
 
 
+def _stored_copy(db, **arrays):
+    """``db`` with ``arrays`` replaced, its kernel arrays as if mapped from its cache file."""
+    import dataclasses
+
+    stored = _database.kernel_arrays(db)
+    assert stored is not None
+    bad = dataclasses.replace(db, **arrays)
+    _database._KERNEL[bad] = stored
+    return bad
+
+
+def _sampled_rows(n_patterns: int) -> np.ndarray:
+    """The pattern rows a stored database's star rows are checked on when it is opened."""
+    step = n_patterns // 512 + 1
+    return np.unique(np.r_[np.arange(0, n_patterns, step), n_patterns - 1])
+
+
+def test_a_stored_database_is_checked_on_a_sample_and_its_look_up_skips_rows_out_of_range(tmp_cache, cam12):
+    # A database mapped from its cache file has its star rows and key order checked on a
+    # sample when opened (a full pass costs more than a one-shot solve's search).  A bad row
+    # in the sample is refused; one elsewhere is skipped by the compiled look-up, which
+    # never reads the star arrays outside their bounds.
+    from shipstar.identify import identify_lost_in_space
+    from shipstar.identify._kernels import _DbBuffers
+    from shipstar.identify._sim import random_attitudes, simulate_frame
+
+    build_database(cam12)
+    _database._MEMO.clear()
+    db = build_database(cam12)
+    assert _DbBuffers(db).from_file
+    P, sampled = db.n_patterns, _sampled_rows(db.n_patterns)
+    wide = db.pattern_stars.astype(np.uint32)
+    # in the sample: refused
+    for r in (0, int(sampled[len(sampled) // 2]), P - 1):
+        ps = wide.copy()
+        ps[r, 1] = db.n_stars
+        with pytest.raises(ValueError, match="inconsistent"):
+            _DbBuffers(_stored_copy(db, pattern_stars=ps))
+    # every row outside the sample pointing 2**31 rows away: opened, and the look-up reads
+    # none of them (a read would fault), solving nothing wrong
+    ps = wide.copy()
+    outside = np.setdiff1d(np.arange(P), sampled)
+    ps[outside, 2] = 2 ** 31
+    bad = _stored_copy(db, pattern_stars=ps)
+    assert _DbBuffers(bad).from_file
+    rng = np.random.default_rng(11)
+    for C in random_attitudes(5, rng):
+        f = simulate_frame(db, cam12, C, rng)
+        good = identify_lost_in_space(f.xy_px, db, camera=cam12)
+        assert good.solved
+        r = identify_lost_in_space(f.xy_px, bad, camera=cam12)
+        if r.solved:
+            m = r.star_index >= 0
+            assert np.all(r.star_index[m] == f.truth_row[m])
+    # a key bucket out of order among those sampled (256 spread): refused
+    counts = np.diff(db.key_hi_start)
+    h = int(np.flatnonzero((counts >= 2) & (np.arange(counts.size) % (counts.size // 256 + 1) == 0))[0])
+    a, e = int(db.key_hi_start[h]), int(db.key_hi_start[h + 1])
+    key_lo = db.key_lo.copy()
+    key_lo[a:e] = np.sort(key_lo[a:e])[::-1]
+    if np.all(key_lo[a:e] == key_lo[a]):
+        key_lo[a] = key_lo[a] + 1
+    with pytest.raises(ValueError, match="not sorted"):
+        _DbBuffers(_stored_copy(db, key_lo=key_lo))
+
+
 @pytest.mark.parametrize("args, kwargs, words", [
     ((0.05,), {}, "fov_x_deg"),
     ((90.0,), {}, "fov_x_deg"),

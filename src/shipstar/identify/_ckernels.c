@@ -188,6 +188,7 @@ typedef struct {
     const uint16_t *size_q;     /* (P,): each pattern's largest edge in size_quantum steps */
     double size_quantum;        /* rad */
     long grid_n, key_bits, lo_bits, bins, n_patterns_db;
+    long n_stars;               /* S: a pattern's star rows are checked against it as read */
 } Db;
 
 /* the largest edge (rad) of the pattern of star rows ps: the smallest of its six dot
@@ -224,6 +225,16 @@ static inline void pattern_row(const Db *db, long row, uint32_t ps[4])
     } else {
         memcpy(ps, (const uint32_t *)db->pstars + 4 * row, 4 * sizeof(uint32_t));
     }
+}
+
+/* pattern_row, and 1 if its four star rows are inside the star arrays (a database mapped
+ * from its cache file has its star rows checked on a sample when it is opened, not every
+ * row: a row out of range is skipped here, as a corrupt one could never match) */
+static inline int pattern_row_in(const Db *db, long row, uint32_t ps[4])
+{
+    pattern_row(db, row, ps);
+    uint32_t mx = ps[0] > ps[1] ? ps[0] : ps[1], my = ps[2] > ps[3] ? ps[2] : ps[3];
+    return (long)(mx > my ? mx : my) < db->n_stars;
 }
 
 typedef struct {
@@ -803,8 +814,8 @@ static int pattern_candidates(Lis *L, const Db *db, long owner, const double *e6
     if (more) n_hit = 0;                /* (never seen) too many: the plain loop below */
     for (int i = 0; i < n_hit; i++) {
         uint32_t ps[4];
-        pattern_row(db, hits[i], ps);
-        for (int a = 0; a < 4; a++) __builtin_prefetch(db->u32 + 3 * ps[a]);
+        if (pattern_row_in(db, hits[i], ps))
+            for (int a = 0; a < 4; a++) __builtin_prefetch(db->u32 + 3 * ps[a]);
     }
     for (int i = 0; i < (more ? n_probe : n_hit); i++) {
       long row_a = more ? db->key_hi_start[his[i]] : hits[i];
@@ -812,7 +823,7 @@ static int pattern_candidates(Lis *L, const Db *db, long owner, const double *e6
       for (long row = row_a; row < row_b; row++) {
             if (more && db->key_lo[row] != los[i]) continue;
             uint32_t ps[4];
-            pattern_row(db, row, ps);
+            if (!pattern_row_in(db, row, ps)) continue;
             /* the largest edge first (one acos): most chance hits fail the size test */
             double dots[6];
             int emin;
@@ -990,6 +1001,7 @@ static void db_from(Db *db, Py_buffer *b, const int64_t *I, const double *D)
     db->cell_u = b[7].buf;
     db->grid_n = (long)I[1]; db->key_bits = (long)I[2]; db->lo_bits = (long)I[3]; db->bins = (long)I[4];
     db->n_patterns_db = (long)I[5];
+    db->n_stars = (long)(b[0].len / (Py_ssize_t)(3 * sizeof(double)));
 }
 
 /* the result of a search: (status, n_match, n_verified, n_patterns, s, k1, p_false, rms);
@@ -1748,36 +1760,38 @@ static int db_check_gather(const void *pstars, int p16, long P, const uint16_t *
     for (long c = 0; c < n_cells; c++) bad |= cs[c + 1] < cs[c];
     if (bad) return 1;
     uint32_t mx = 0;
-    if (p16) {
-        const uint16_t *p = pstars;
-        uint16_t m16 = 0;
-        for (long i = 0; i < 4 * P; i++) m16 = p[i] > m16 ? p[i] : m16;
-        mx = m16;
-    } else {
-        const uint32_t *p = pstars;
-        for (long i = 0; i < 4 * P; i++) mx = p[i] > mx ? p[i] : mx;
-    }
-    if (P > 0 && (long)mx >= S) return 1;
-    mx = 0;
     for (long q = 0; q < M; q++) mx = ci[q] > mx ? ci[q] : mx;
     if (M > 0 && (long)mx >= S) return 1;
-    /* the look-up reads a bucket's rows as sorted by key_lo: every descent of key_lo
-     * (one linear pass) must be at the first row of a bucket */
-    long descents = 0, at_starts = 0;
-    for (long r = 1; r < P; r++) descents += key_lo[r] < key_lo[r - 1];
-    for (long h = 0; h < n_seg; h++) {
-        long r = khs[h];
-        at_starts += r > 0 && r < khs[h + 1] && key_lo[r] < key_lo[r - 1];
-    }
-    if (descents != at_starts) return 2;
     Db db;
     memset(&db, 0, sizeof db);
     db.pstars = pstars;
     db.pstars16 = p16;
+    db.n_stars = S;
     double dots[6];
     int emin;
     uint32_t ps[4];
     if (gather) {
+        /* made here (a database just built, or one whose stored arrays are missing):
+         * every star row, and every bucket sorted by key_lo (the look-up reads it so):
+         * each descent of key_lo (one linear pass) must be at the first row of a bucket */
+        mx = 0;
+        if (p16) {
+            const uint16_t *p = pstars;
+            uint16_t m16 = 0;
+            for (long i = 0; i < 4 * P; i++) m16 = p[i] > m16 ? p[i] : m16;
+            mx = m16;
+        } else {
+            const uint32_t *p = pstars;
+            for (long i = 0; i < 4 * P; i++) mx = p[i] > mx ? p[i] : mx;
+        }
+        if (P > 0 && (long)mx >= S) return 1;
+        long descents = 0, at_starts = 0;
+        for (long r = 1; r < P; r++) descents += key_lo[r] < key_lo[r - 1];
+        for (long h = 0; h < n_seg; h++) {
+            long r = khs[h];
+            at_starts += r > 0 && r < khs[h + 1] && key_lo[r] < key_lo[r - 1];
+        }
+        if (descents != at_starts) return 2;
         for (long q = 0; q < M; q++) {
             const double *u = u64 + 3 * (long)ci[q];
             double *o = cell_u + 3 * q;
@@ -1789,22 +1803,35 @@ static int db_check_gather(const void *pstars, int p16, long P, const uint16_t *
         }
         return 0;
     }
-    /* the stored size steps: 2048 rows spread over the array, and the last (each costs
-     * random reads of its stars; a misplaced or foreign array is refused all the same,
-     * and a changed step elsewhere can only drop a match, never make a wrong one) */
-    long step = P / 2048 + 1;
+    /* Stored (mapped from the cache file, which was checked in full when it was built):
+     * a sample, as reading every row would cost more than a one-shot solve's search
+     * (~20-50 ms for a 2.3 million-pattern database).  A misplaced or foreign array is
+     * refused all the same; elsewhere, a star row out of range is skipped by the look-up
+     * (pattern_row_in), and a changed size step or key order can only drop a match, never
+     * make a wrong one.  The samples are spread thin enough not to touch every page of
+     * the arrays (a page read from the page cache costs ~1 us).  256 buckets sorted by
+     * key_lo: */
+    for (long h = 0; h < n_seg; h += n_seg / 256 + 1)
+        for (long r = (long)khs[h] + 1; r < khs[h + 1]; r++)
+            if (key_lo[r] < key_lo[r - 1]) return 2;
+    /* 512 rows spread over the array, and the last: star rows in range, size steps as
+     * made here (each costs random reads of its stars) */
+    long step = P / 512 + 1;
     for (long r = 0; r < P; r = r + step < P || r == P - 1 ? r + step : P - 1) {
-        pattern_row(&db, r, ps);
+        if (!pattern_row_in(&db, r, ps)) return 1;
         if (size_q[r] != size_step(largest_edge(u32, ps, dots, &emin), quantum)) return 3;
     }
-    /* stored (memory-mapped) vectors: a sample of rows, and the last, as made here (a
-     * misplaced or foreign array is refused; they index nothing, so a changed value
-     * elsewhere can only spoil a match, as a changed u_icrs would) */
-    for (long q = 0; q < M; q = q + 61 < M || q == M - 1 ? q + 61 : M - 1) {
+    /* stored (memory-mapped) vectors: 512 rows spread over each array, and the last, as
+     * made here (a misplaced or foreign array is refused; they index nothing, so a changed
+     * value elsewhere can only spoil a match, as a changed u_icrs would).  Not every 61st
+     * row as before: that touched every page of cell_u (12.7 MB, 6-10 ms mapped from the
+     * page cache, for the 2.3 million-pattern database) */
+    long qstep = M / 512 + 1, istep = S / 512 + 1;
+    for (long q = 0; q < M; q = q + qstep < M || q == M - 1 ? q + qstep : M - 1) {
         const double *u = u64 + 3 * (long)ci[q], *o = cell_u + 3 * q;
         if (o[0] != u[0] || o[1] != u[1] || o[2] != u[2]) return 3;
     }
-    for (long i = 0; i < S; i = i + 61 < S || i == S - 1 ? i + 61 : S - 1) {
+    for (long i = 0; i < S; i = i + istep < S || i == S - 1 ? i + istep : S - 1) {
         const double *u = u64 + 3 * i;
         const float *f = u32 + 3 * i;
         double n2 = u[0] * u[0] + u[1] * u[1] + u[2] * u[2];
