@@ -248,6 +248,16 @@ def _prepare(session, header_reader=None) -> None:
     session.comments = _csv_comments(session.eop, session.start_warnings) + _override_comments(session.overrides)
 
 
+def _stopped_by(stop) -> str:
+    """What stopped the command (``SIGINT``, ``SIGTERM``...), for a session not started."""
+    return getattr(stop, "reason", "") or "stopped"
+
+
+def _why(exc: BaseException) -> str:
+    """An exception's text on one line (its type's name when it has none)."""
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
 class _Preparation:
     """Sessions prepared (:func:`_prepare`) in their order by one thread of this process,
     each when taken or, with ``ahead`` 1, the next one while those taken are processed
@@ -278,7 +288,7 @@ class _Preparation:
 
     def _one(self, s) -> None:
         if self.stop.is_set():
-            s.not_started = getattr(self.stop, "reason", "") or "stopped"
+            s.not_started = _stopped_by(self.stop)
             return
         try:
             _prepare(s, self.reader)
@@ -357,7 +367,7 @@ def _process_all(sessions, client, args, stop, bar, prep) -> None:
         return
     for i, s in enumerate(todo):
         if stop.is_set():
-            s.not_started = s.not_started or getattr(stop, "reason", "") or "stopped"
+            s.not_started = s.not_started or _stopped_by(stop)
             continue
         prep.take(i)
         if not _runnable(s):
@@ -426,8 +436,8 @@ def _drive_session(address: str, k: int, job, sources, out, kwargs) -> tuple:
     try:
         client = open_client(address, timeout_s=30)
     except Exception as exc:                # OSError, TimeoutError, ValueError, or Dask's own
-        why = " ".join(str(exc).split()) or type(exc).__name__
-        return "error", f"its driver process could not reach the Dask scheduler at {address} ({why})", os.getpid()
+        return "error", f"its driver process could not reach the Dask scheduler at {address} ({_why(exc)})", \
+            os.getpid()
     try:
         outcome = run_archive(client, job, sources, out, **kwargs, stop=halt,
                               progress=lambda n, total: updates.put((k, n, total)))
@@ -477,7 +487,7 @@ def _drive_in_processes(todo, address: str, args, stop, progress, prep) -> None:
             while k < len(todo) and len(pending) < at_once:
                 s = todo[k]
                 if stop.is_set():
-                    s.not_started = s.not_started or getattr(stop, "reason", "") or "stopped"
+                    s.not_started = s.not_started or _stopped_by(stop)
                 elif prep.take(k, timeout_s=0 if pending else 0.2) is None:
                     break                           # not yet prepared: the running ones are watched meanwhile
                 elif _runnable(s):
@@ -500,9 +510,8 @@ def _drive_in_processes(todo, address: str, args, stop, progress, prep) -> None:
                               "wrote, --resume continues it"
                     continue
                 except Exception as exc:            # (not expected: the driver returns its errors)
-                    why = " ".join(str(exc).split()) or type(exc).__name__
-                    s.error = f"its driver process failed ({why}); OUT.partial holds the rows it wrote, --resume " \
-                              "continues it"
+                    s.error = f"its driver process failed ({_why(exc)}); OUT.partial holds the rows it wrote, " \
+                              "--resume continues it"
                     continue
                 if what == "ok":
                     s.outcome = value
