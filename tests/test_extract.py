@@ -25,6 +25,7 @@ from shipstar.extract import (
     flag_names,
     read_image,
 )
+from shipstar.extract._io import read_image_any
 from shipstar.simulate._render import FalseObjects, render_frame, star_signal_e
 
 A1 = camera_preset("A1")
@@ -314,6 +315,9 @@ def test_read_fits_png_tiff_npy_round_trip(tmp_path):
         back = read_image(tmp_path / name)
         assert back.dtype == np.uint16 and back.dtype.isnative, name
         np.testing.assert_array_equal(back, image, err_msg=name)
+        assert back.flags.writeable, name                  # the public reader's arrays are the caller's
+        # the solver's reader (may share Pillow's bytes, read only): the same pixels
+        np.testing.assert_array_equal(read_image_any(tmp_path / name, writable=False), image, err_msg=name)
     assert len(extract_stars(read_image(tmp_path / "f.fits"))) == len(extract_stars(image))
 
 
@@ -344,8 +348,9 @@ def test_read_colour_jpeg_and_png_as_luminance(tmp_path):
     lum = 0.299 * 200 + 0.587 * 100 + 0.114 * 50                     # ITU-R 601
     for name in ("c.png", "c.jpg"):
         back = read_image(tmp_path / name)
-        assert back.shape == (40, 50) and back.dtype == np.uint8
+        assert back.shape == (40, 50) and back.dtype == np.uint8 and back.flags.writeable
         assert np.abs(back.astype(float) - lum).max() <= 2.0, name
+        np.testing.assert_array_equal(read_image_any(tmp_path / name, writable=False), back, err_msg=name)
     Image.fromarray(rgb[..., 0]).save(tmp_path / "g.jpg")
     assert read_image(tmp_path / "g.jpg").dtype == np.uint8
 

@@ -236,15 +236,29 @@ def test_the_compiled_database_check_refuses_corrupted_arrays(db12):
 
 
 def test_a_database_of_uint32_star_rows_solves_as_its_uint16_copy(db12, cam12):
-    # the compiled look-up reads pattern star rows as stored, uint16 or uint32
-    assert db12.pattern_stars.dtype == np.uint16
-    wide = dataclasses.replace(db12, pattern_stars=db12.pattern_stars.astype(np.uint32))
-    assert _DbBuffers(wide).pstars.dtype == np.uint32
+    # the compiled look-up and tracking read pattern star rows and the cells' star rows as
+    # stored, uint16 (up to 65536 stars) or uint32 (a larger catalog); a mixed database
+    # (one of each) too
+    assert db12.pattern_stars.dtype == np.uint16 and db12.cell_index.dtype == np.uint16
+    wide = dataclasses.replace(db12, pattern_stars=db12.pattern_stars.astype(np.uint32),
+                               cell_index=db12.cell_index.astype(np.uint32))
+    mixed = dataclasses.replace(db12, cell_index=db12.cell_index.astype(np.uint32))
+    assert _DbBuffers(wide).pstars.dtype == np.uint32 and _DbBuffers(wide).cell_index.dtype == np.uint32
+    assert _DbBuffers(db12).cell_index.dtype == np.uint16          # read as stored, not widened
     rng = np.random.default_rng(5)
     for C in random_attitudes(3, rng):
         xy = simulate_frame(db12, cam12, C, rng).xy_px
-        _same(identify_lost_in_space(xy, db12, camera=cam12),
-              identify_lost_in_space(xy, wide, camera=cam12))
+        ref = identify_lost_in_space(xy, db12, camera=cam12)
+        assert ref.solved
+        for other in (wide, mixed):
+            _same(ref, identify_lost_in_space(xy, other, camera=cam12))
+        prior = _rotate(C, 0.3, rng)
+        ref = identify_tracking(xy, db12, prior, camera=cam12, prior_error_deg=0.5, fallback=False)
+        assert ref.solved and ref.mode == "tracking"
+        for other in (wide, mixed):
+            _same(ref, identify_tracking(xy, other, prior, camera=cam12, prior_error_deg=0.5, fallback=False))
+            f = field_from_camera(xy, cam12, error_px=1.0)
+            _same(ref, tracking(f, other, prior, prior_error_rad=0.5 * DEG2RAD))
 
 
 def test_tracking_and_its_fallback_both_failing_answer_unsolved(db12, cam12):

@@ -175,6 +175,24 @@ static long cell_of_one(const double *v, long n)
     return (face * n + i) * n + j;
 }
 
+/* row q of a cell list stored as uint16 (ci16) or uint32 */
+static inline long cell_row(const void *ci, int ci16, long q)
+{
+    return ci16 ? (long)((const uint16_t *)ci)[q] : (long)((const uint32_t *)ci)[q];
+}
+
+/* whether a cell list of cell_start's last offset M rows is uint16 (1), uint32 (0) or
+ * neither (-1), from its length in bytes */
+static int cell_list_u16(const Py_buffer *cs, const Py_buffer *ci)
+{
+    Py_ssize_t n = cs->len / (Py_ssize_t)sizeof(int32_t);
+    if (n < 1) return -1;
+    Py_ssize_t M = ((const int32_t *)cs->buf)[n - 1];
+    if (M < 0) return -1;
+    if (ci->len == 2 * M) return 1;
+    return ci->len == 4 * M ? 0 : -1;
+}
+
 typedef struct {
     const double *u64;          /* (S, 3) */
     const float *u32;           /* (S, 3) */
@@ -183,7 +201,8 @@ typedef struct {
     const uint16_t *key_lo;     /* (P,) */
     const int32_t *key_hi_start;
     const int32_t *cell_start;
-    const uint32_t *cell_index;
+    const void *cell_index;     /* (M,): uint16 (ci16, as stored for up to 65536 stars) or uint32 */
+    int ci16;
     const double *cell_u;       /* (M, 3): u64[cell_index], read in cell order */
     const uint16_t *size_q;     /* (P,): each pattern's largest edge in size_quantum steps */
     double size_quantum;        /* rad */
@@ -291,7 +310,7 @@ static int predict(const Db *db, const double *C, const double *box, double marg
     if (pred_reserve(out, e - a) < 0) return -1;
     long m = 0, n_in = 0;
     for (long q = a; q < e; q++) {
-        long r = db->cell_index[q];
+        long r = cell_row(db->cell_index, db->ci16, q);
         const double *u = db->cell_u + 3 * q;
         double w0 = u[0] * C[0] + u[1] * C[3] + u[2] * C[6];
         double w1 = u[0] * C[1] + u[1] * C[4] + u[2] * C[7];
@@ -998,6 +1017,7 @@ static void db_from(Db *db, Py_buffer *b, const int64_t *I, const double *D)
     db->u64 = b[0].buf; db->u32 = b[1].buf; db->pstars = b[2].buf; db->key_lo = b[3].buf;
     db->pstars16 = b[2].len == (Py_ssize_t)(8 * I[5]);     /* else uint32 (db_prepare checked) */
     db->key_hi_start = b[4].buf; db->cell_start = b[5].buf; db->cell_index = b[6].buf;
+    db->ci16 = cell_list_u16(&b[5], &b[6]) == 1;         /* else uint32 (db_prepare checked) */
     db->cell_u = b[7].buf;
     db->grid_n = (long)I[1]; db->key_bits = (long)I[2]; db->lo_bits = (long)I[3]; db->bins = (long)I[4];
     db->n_patterns_db = (long)I[5];
@@ -1503,8 +1523,8 @@ static int track_run(Scene *S, const double *C_prior, const double *box, long *i
  * memory.  img, cat: n longs. */
 static int track_core(const double *t, const double *w, long n_stars, const double *t_more,
                       long n_more, const double *C_prior,
-                      const double *cell_u, const int32_t *cell_start, const uint32_t *cell_index,
-                      const int64_t *I, const double *D, TrackOut *out, long *img, long *cat,
+                      const double *cell_u, const int32_t *cell_start, const void *cell_index,
+                      int ci16, const int64_t *I, const double *D, TrackOut *out, long *img, long *cat,
                       double *rms_out)
 {
     long grid_n = (long)I[0];
@@ -1546,7 +1566,7 @@ static int track_core(const double *t, const double *w, long n_stars, const doub
         long m = 0;
         double margin = S.gate_prior;
         for (long q = cell_start[c]; q < cell_start[c + 1]; q++) {
-            long r = cell_index[q];
+            long r = cell_row(cell_index, ci16, q);
             const double *uu = cell_u + 3 * q;
             double w0 = uu[0] * C_prior[0] + uu[1] * C_prior[3] + uu[2] * C_prior[6];
             double w1 = uu[0] * C_prior[1] + uu[1] * C_prior[4] + uu[2] * C_prior[7];
@@ -1622,11 +1642,20 @@ static PyObject *py_track_solve(PyObject *self, PyObject *args)
     long *img = malloc((n > 0 ? n : 1) * sizeof(long)), *cat = malloc((n > 0 ? n : 1) * sizeof(long));
     TrackOut out;
     memset(&out, 0, sizeof out);
-    int rc = -1;
+    int rc = -1, ci16 = cell_list_u16(&bcs, &bci);
     double rms = NAN;
+    if (ci16 < 0) {
+        free(img); free(cat);
+        PyBuffer_Release(&bt); PyBuffer_Release(&bw); PyBuffer_Release(&bmore); PyBuffer_Release(&bc);
+        PyBuffer_Release(&bu); PyBuffer_Release(&bcs); PyBuffer_Release(&bci); PyBuffer_Release(&ip);
+        PyBuffer_Release(&dp); PyBuffer_Release(&oc); PyBuffer_Release(&bus); PyBuffer_Release(&bh);
+        PyBuffer_Release(&ostar); PyBuffer_Release(&ohip);
+        PyErr_SetString(PyExc_ValueError, "track_solve: cell_index is neither uint16 nor uint32 of cell_start's rows");
+        return NULL;
+    }
     if (img && cat) {
         Py_BEGIN_ALLOW_THREADS
-        rc = track_core(bt.buf, bw.buf, n, bmore.buf, n_more, bc.buf, bu.buf, bcs.buf, bci.buf, ip.buf,
+        rc = track_core(bt.buf, bw.buf, n, bmore.buf, n_more, bc.buf, bu.buf, bcs.buf, bci.buf, ci16, ip.buf,
                         dp.buf, &out, img, cat, &rms);
         Py_END_ALLOW_THREADS
     }
@@ -1658,13 +1687,22 @@ static PyObject *py_track_pinhole(PyObject *self, PyObject *args)
     double *t = malloc(2 * nn * sizeof(double));
     TrackOut out;
     memset(&out, 0, sizeof out);
-    int rc = -1, finite = 0;
+    int rc = -1, finite = 0, ci16 = cell_list_u16(&bcs, &bci);
     double rms = NAN;
+    if (ci16 < 0) {
+        free(img); free(cat); free(t);
+        PyBuffer_Release(&bx); PyBuffer_Release(&bcam); PyBuffer_Release(&bc); PyBuffer_Release(&bu);
+        PyBuffer_Release(&bcs); PyBuffer_Release(&bci); PyBuffer_Release(&ip); PyBuffer_Release(&dp);
+        PyBuffer_Release(&oc); PyBuffer_Release(&ou); PyBuffer_Release(&bh); PyBuffer_Release(&ostar);
+        PyBuffer_Release(&ohip);
+        PyErr_SetString(PyExc_ValueError, "track_pinhole: cell_index is neither uint16 nor uint32 of cell_start's rows");
+        return NULL;
+    }
     if (img && cat && t && m <= n && (long)(ou.len / (3 * sizeof(double))) == n) {
         Py_BEGIN_ALLOW_THREADS
         finite = unproject_rows(bx.buf, n, bcam.buf, ou.buf, t);
         if (finite)
-            rc = track_core(t, ou.buf, m, t + 2 * m, n - m, bc.buf, bu.buf, bcs.buf, bci.buf, I, dp.buf,
+            rc = track_core(t, ou.buf, m, t + 2 * m, n - m, bc.buf, bu.buf, bcs.buf, bci.buf, ci16, I, dp.buf,
                             &out, img, cat, &rms);
         Py_END_ALLOW_THREADS
     }
@@ -1750,7 +1788,7 @@ static PyObject *py_scatter(PyObject *self, PyObject *args)
  * by key_lo, 3 stored vectors (not `gather`) that are not those of the star rows. */
 static int db_check_gather(const void *pstars, int p16, long P, const uint16_t *key_lo,
                            const int32_t *khs, long n_seg, const int32_t *cs, long n_cells,
-                           const uint32_t *ci, long M, const double *u64, const float *u32,
+                           const void *ci, int ci16, long M, const double *u64, const float *u32,
                            long S, double *cell_u, uint16_t *size_q, double quantum, int gather)
 {
     if (!(quantum > 0.0)) return 1;
@@ -1760,7 +1798,15 @@ static int db_check_gather(const void *pstars, int p16, long P, const uint16_t *
     for (long c = 0; c < n_cells; c++) bad |= cs[c + 1] < cs[c];
     if (bad) return 1;
     uint32_t mx = 0;
-    for (long q = 0; q < M; q++) mx = ci[q] > mx ? ci[q] : mx;
+    if (ci16) {
+        const uint16_t *c16 = ci;
+        uint16_t m16 = 0;
+        for (long q = 0; q < M; q++) m16 = c16[q] > m16 ? c16[q] : m16;
+        mx = m16;
+    } else {
+        const uint32_t *c32 = ci;
+        for (long q = 0; q < M; q++) mx = c32[q] > mx ? c32[q] : mx;
+    }
     if (M > 0 && (long)mx >= S) return 1;
     Db db;
     memset(&db, 0, sizeof db);
@@ -1793,7 +1839,7 @@ static int db_check_gather(const void *pstars, int p16, long P, const uint16_t *
         }
         if (descents != at_starts) return 2;
         for (long q = 0; q < M; q++) {
-            const double *u = u64 + 3 * (long)ci[q];
+            const double *u = u64 + 3 * cell_row(ci, ci16, q);
             double *o = cell_u + 3 * q;
             o[0] = u[0]; o[1] = u[1]; o[2] = u[2];
         }
@@ -1829,7 +1875,7 @@ static int db_check_gather(const void *pstars, int p16, long P, const uint16_t *
      * page cache, for the 2.3 million-pattern database) */
     long qstep = M / 512 + 1, istep = S / 512 + 1;
     for (long q = 0; q < M; q = q + qstep < M || q == M - 1 ? q + qstep : M - 1) {
-        const double *u = u64 + 3 * (long)ci[q], *o = cell_u + 3 * q;
+        const double *u = u64 + 3 * cell_row(ci, ci16, q), *o = cell_u + 3 * q;
         if (o[0] != u[0] || o[1] != u[1] || o[2] != u[2]) return 3;
     }
     for (long i = 0; i < S; i = i + istep < S || i == S - 1 ? i + istep : S - 1) {
@@ -1844,7 +1890,8 @@ static int db_check_gather(const void *pstars, int p16, long P, const uint16_t *
 }
 
 /* db_prepare(pstars (P, 4) uint16 or uint32, key_lo (P,) uint16, key_hi_start (H + 1,)
- * int32, cell_start (C + 1,) int32, cell_index (M,) uint32, u64 (S, 3) float64,
+ * int32, cell_start (C + 1,) int32, cell_index (M,) uint16 or uint32 (told apart by
+ * length, M = cell_start[C]), u64 (S, 3) float64,
  * cell_u (M, 3) float64, u32 (S, 3) float32, size_q (P,) uint16, size_quantum, gather)
  * -> 0 consistent (gather: cell_u = u64[cell_index] and each pattern's size step
  * written; else the stored cell_u, size_q and u64 checked on a sample), 1
@@ -1867,15 +1914,17 @@ static PyObject *py_db_prepare(PyObject *self, PyObject *args)
         return NULL;
     }
     long P = (long)(bk.len / sizeof(uint16_t)), n_seg = (long)(bh.len / sizeof(int32_t)) - 1;
-    long n_cells = (long)(bs.len / sizeof(int32_t)) - 1, M = (long)(bi.len / sizeof(uint32_t));
+    long n_cells = (long)(bs.len / sizeof(int32_t)) - 1;
+    int ci16 = cell_list_u16(&bs, &bi);
+    long M = (long)(bi.len / (ci16 == 1 ? sizeof(uint16_t) : sizeof(uint32_t)));
     long S = (long)(bu.len / (3 * sizeof(double)));
     int p16 = bp.len == (Py_ssize_t)(8 * P), rc = 1;
-    if (n_seg >= 0 && n_cells >= 0 && (p16 || bp.len == (Py_ssize_t)(16 * P))
+    if (n_seg >= 0 && n_cells >= 0 && ci16 >= 0 && (p16 || bp.len == (Py_ssize_t)(16 * P))
             && bo.len == (Py_ssize_t)(3 * sizeof(double) * M)
             && bf.len == (Py_ssize_t)(3 * sizeof(float) * S)
             && bz.len == (Py_ssize_t)(sizeof(uint16_t) * P)) {
         Py_BEGIN_ALLOW_THREADS
-        rc = db_check_gather(bp.buf, p16, P, bk.buf, bh.buf, n_seg, bs.buf, n_cells, bi.buf, M,
+        rc = db_check_gather(bp.buf, p16, P, bk.buf, bh.buf, n_seg, bs.buf, n_cells, bi.buf, ci16, M,
                              bu.buf, bf.buf, S, (double *)bo.buf, (uint16_t *)bz.buf, quantum, gather);
         Py_END_ALLOW_THREADS
     }

@@ -69,13 +69,14 @@ class _DbBuffers:
         self.key_lo = np.ascontiguousarray(db.key_lo, dtype=np.uint16)
         self.key_hi_start = np.ascontiguousarray(db.key_hi_start, dtype=np.int32)
         self.cell_start = np.ascontiguousarray(db.cell_start, dtype=np.int32)
-        self.cell_index = np.ascontiguousarray(db.cell_index, dtype=np.uint32)
+        ci = db.cell_index             # uint16 (up to 65536 stars, as stored) is read as it is
+        self.cell_index = np.ascontiguousarray(ci, dtype=ci.dtype if ci.dtype in _STAR_ROWS else np.uint32)
         self.hip = np.ascontiguousarray(db.hip, dtype=np.int32)
         n_cells = 6 * int(db.grid_n) ** 2
         if (self.u64.shape != (db.n_stars, 3) or self.pstars.shape != (db.n_patterns, 4)
                 or self.key_lo.shape != (db.n_patterns,) or self.cell_start.shape != (n_cells + 1,)
                 or self.key_hi_start.ndim != 1 or self.key_hi_start.shape[0] < 1
-                or self.cell_index.ndim != 1):
+                or self.cell_index.ndim != 1 or self.cell_index.shape[0] != int(self.cell_start[-1])):
             raise ValueError("star database arrays are inconsistent")
         # one compiled pass: the offsets non-decreasing from 0 to the array ends, every
         # star row < n_stars, each key bucket sorted by key_lo (the compiled look-up reads

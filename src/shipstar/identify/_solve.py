@@ -141,9 +141,9 @@ class SolveResult:
 
 def _as_image(image):
     if isinstance(image, (str, bytes)) or hasattr(image, "__fspath__"):
-        from shipstar.extract import read_image
+        from shipstar.extract._io import read_image_any
 
-        return read_image(image)
+        return read_image_any(image, writable=False)       # extraction only reads it
     arr = np.asarray(image)
     if arr.ndim != 2 or arr.size == 0:
         raise ShipstarError(f"image must be a non-empty 2-D array, got shape {arr.shape}")
