@@ -199,10 +199,12 @@ def _stored_copy(db, **arrays):
     return bad
 
 
-def _sampled_rows(n_patterns: int) -> np.ndarray:
-    """The pattern rows a stored database's star rows are checked on when it is opened."""
-    step = n_patterns // 512 + 1
-    return np.unique(np.r_[np.arange(0, n_patterns, step), n_patterns - 1])
+def _sampled_rows(n: int) -> np.ndarray:
+    """The rows of an array of ``n`` a stored database is checked on when it is opened
+    (the compiled ``sampled_row``): 32 runs of 16 consecutive rows at evenly spaced
+    starts, and the last row."""
+    i = np.arange(32 * 16)
+    return np.unique(np.minimum(np.r_[(i // 16) * (n // 32) + i % 16, n - 1], n - 1))
 
 
 def test_a_stored_database_is_checked_on_a_sample_and_its_look_up_skips_rows_out_of_range(tmp_cache, cam12):
@@ -221,7 +223,7 @@ def test_a_stored_database_is_checked_on_a_sample_and_its_look_up_skips_rows_out
     P, sampled = db.n_patterns, _sampled_rows(db.n_patterns)
     wide = db.pattern_stars.astype(np.uint32)
     # in the sample: refused
-    for r in (0, int(sampled[len(sampled) // 2]), P - 1):
+    for r in (0, int(sampled[len(sampled) // 2]), 15 * (P // 32) + 15, P - 1):      # (a run's last row)
         ps = wide.copy()
         ps[r, 1] = db.n_stars
         with pytest.raises(ValueError, match="inconsistent"):
@@ -242,9 +244,10 @@ def test_a_stored_database_is_checked_on_a_sample_and_its_look_up_skips_rows_out
         if r.solved:
             m = r.star_index >= 0
             assert np.all(r.star_index[m] == f.truth_row[m])
-    # a key bucket out of order among those sampled (256 spread): refused
+    # a key bucket out of order among those sampled: refused; outside them, opened
     counts = np.diff(db.key_hi_start)
-    h = int(np.flatnonzero((counts >= 2) & (np.arange(counts.size) % (counts.size // 256 + 1) == 0))[0])
+    in_sample = np.isin(np.arange(counts.size), _sampled_rows(counts.size))
+    h = int(np.flatnonzero((counts >= 2) & in_sample)[0])
     a, e = int(db.key_hi_start[h]), int(db.key_hi_start[h + 1])
     key_lo = db.key_lo.copy()
     key_lo[a:e] = np.sort(key_lo[a:e])[::-1]
@@ -252,6 +255,17 @@ def test_a_stored_database_is_checked_on_a_sample_and_its_look_up_skips_rows_out
         key_lo[a] = key_lo[a] + 1
     with pytest.raises(ValueError, match="not sorted"):
         _DbBuffers(_stored_copy(db, key_lo=key_lo))
+    # the same outside the sample: opened (the sample is the one named above; an unsorted
+    # bucket can only drop a match)
+    starts = db.key_hi_start[:-1][counts > 0]                  # each non-empty bucket's own rows
+    spread = np.zeros(counts.size, dtype=bool)
+    spread[counts > 0] = np.maximum.reduceat(db.key_lo, starts) > np.minimum.reduceat(db.key_lo, starts)
+    h = int(np.flatnonzero(spread & ~in_sample)[0])             # two distinct keys: reversed, a descent
+    a, e = int(db.key_hi_start[h]), int(db.key_hi_start[h + 1])
+    key_lo = db.key_lo.copy()
+    key_lo[a:e] = np.sort(key_lo[a:e])[::-1]
+    assert np.any(np.diff(key_lo[a:e].astype(int)) < 0)
+    assert _DbBuffers(_stored_copy(db, key_lo=key_lo)).from_file
 
 
 @pytest.mark.parametrize("args, kwargs, words", [

@@ -1782,6 +1782,20 @@ static PyObject *py_scatter(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
+/* The i-th of a stored array's sampled rows, i in [0, SAMPLE_RUNS * SAMPLE_RUN]: runs of
+ * SAMPLE_RUN consecutive rows at SAMPLE_RUNS evenly spaced starts over [0, n), and
+ * (i == SAMPLE_RUNS * SAMPLE_RUN) the last row.  Runs, not single rows spread evenly:
+ * the same number of rows from ~1/16 of the pages (each first touch of a page of the
+ * mapped cache file is a fault, which maps its 16-page neighbourhood). */
+#define SAMPLE_RUNS 32
+#define SAMPLE_RUN 16
+static long sampled_row(long i, long n)
+{
+    if (i >= SAMPLE_RUNS * SAMPLE_RUN) return n - 1;
+    long r = (i / SAMPLE_RUN) * (n / SAMPLE_RUNS) + i % SAMPLE_RUN;
+    return r < n ? r : n - 1;
+}
+
 /* The consistency of a database's arrays (every index the kernels follow stays inside
  * its array) and its cell vectors, in one pass over each array: 0 consistent (cell_u
  * filled when `gather`), 1 offsets / star rows out of range, 2 a key bucket not sorted
@@ -1854,31 +1868,32 @@ static int db_check_gather(const void *pstars, int p16, long P, const uint16_t *
      * (~20-50 ms for a 2.3 million-pattern database).  A misplaced or foreign array is
      * refused all the same; elsewhere, a star row out of range is skipped by the look-up
      * (pattern_row_in), and a changed size step or key order can only drop a match, never
-     * make a wrong one.  The samples are spread thin enough not to touch every page of
-     * the arrays (each first touch of a mapped page is a fault: sampling every 61st
-     * vector row, which touched them all, cost 6-10 ms here).  256 buckets sorted by
-     * key_lo: */
-    for (long h = 0; h < n_seg; h += n_seg / 256 + 1)
+     * make a wrong one.  Each array is checked on the same 513 rows of it (sampled_row:
+     * runs, so that few of its pages are touched: each first touch of a mapped page is a
+     * fault; 513 single rows spread evenly cost 16-19 ms for the 2.3 million-pattern
+     * database here, every 61st row of the vectors more).  Key buckets sorted by key_lo: */
+    const long n_samples = SAMPLE_RUNS * SAMPLE_RUN + 1;
+    for (long i = 0; i < n_samples && n_seg > 0; i++) {
+        long h = sampled_row(i, n_seg);
         for (long r = (long)khs[h] + 1; r < khs[h + 1]; r++)
             if (key_lo[r] < key_lo[r - 1]) return 2;
-    /* 512 rows spread over the array, and the last: star rows in range, size steps as
-     * made here (each costs random reads of its stars) */
-    long step = P / 512 + 1;
-    for (long r = 0; r < P; r = r + step < P || r == P - 1 ? r + step : P - 1) {
+    }
+    /* star rows in range, size steps as made here (each costs random reads of its stars) */
+    for (long i = 0; i < n_samples && P > 0; i++) {
+        long r = sampled_row(i, P);
         if (!pattern_row_in(&db, r, ps)) return 1;
         if (size_q[r] != size_step(largest_edge(u32, ps, dots, &emin), quantum)) return 3;
     }
-    /* stored (memory-mapped) vectors: 512 rows spread over each array, and the last, as
-     * made here (a misplaced or foreign array is refused; they index nothing, so a changed
-     * value elsewhere can only spoil a match, as a changed u_icrs would).  Not every 61st
-     * row as before: that touched every page of cell_u (12.7 MB, 6-10 ms mapped from the
-     * page cache, for the 2.3 million-pattern database) */
-    long qstep = M / 512 + 1, istep = S / 512 + 1;
-    for (long q = 0; q < M; q = q + qstep < M || q == M - 1 ? q + qstep : M - 1) {
+    /* stored (memory-mapped) vectors as made here (a misplaced or foreign array is
+     * refused; they index nothing, so a changed value elsewhere can only spoil a match, as
+     * a changed u_icrs would) */
+    for (long i = 0; i < n_samples && M > 0; i++) {
+        long q = sampled_row(i, M);
         const double *u = u64 + 3 * cell_row(ci, ci16, q), *o = cell_u + 3 * q;
         if (o[0] != u[0] || o[1] != u[1] || o[2] != u[2]) return 3;
     }
-    for (long i = 0; i < S; i = i + istep < S || i == S - 1 ? i + istep : S - 1) {
+    for (long k = 0; k < n_samples && S > 0; k++) {
+        long i = sampled_row(k, S);
         const double *u = u64 + 3 * i;
         const float *f = u32 + 3 * i;
         double n2 = u[0] * u[0] + u[1] * u[1] + u[2] * u[2];
