@@ -370,6 +370,55 @@ def test_unreadable_files_raise_one_line_errors(tmp_path):
         assert "\n" not in str(info.value), name
 
 
+def _pillow_luminance(path) -> np.ndarray:
+    """A JPEG's luminance as Pillow decodes it (the Y plane of a colour one): the reference."""
+    from PIL import Image
+
+    with Image.open(path) as im:
+        if im.mode == "RGB":
+            im.draft("L", None)
+        im.load()
+        return np.array(im if im.mode == "L" else im.convert("L"))
+
+
+def test_jpeg_read_directly_is_pillows_decode_and_the_rest_goes_to_pillow(tmp_path):
+    from PIL import Image
+
+    from shipstar.extract._io import _read_jpeg_direct
+
+    rng = np.random.default_rng(3)
+    rgb = rng.integers(0, 256, (61, 83, 3), dtype=np.uint8)
+    rgb[20:30, 40:50] = 250
+    grey = rng.integers(0, 4096, (47, 59)).astype(np.uint8)
+    Image.fromarray(rgb).save(tmp_path / "c.jpg", quality=90)                      # YCbCr 4:2:0
+    Image.fromarray(rgb).save(tmp_path / "c444.jpg", quality=97, subsampling=0)
+    Image.fromarray(rgb).save(tmp_path / "p.jpg", quality=80, progressive=True)
+    Image.fromarray(grey).save(tmp_path / "g.jpg")
+    for name in ("c.jpg", "c444.jpg", "p.jpg", "g.jpg"):
+        direct = _read_jpeg_direct(tmp_path / name)
+        assert direct is not None and direct.flags.writeable, name
+        np.testing.assert_array_equal(direct, _pillow_luminance(tmp_path / name), err_msg=name)
+        np.testing.assert_array_equal(read_image(tmp_path / name), direct, err_msg=name)
+    # CMYK: not taken directly; Pillow's luminance
+    Image.fromarray(rgb).convert("CMYK").save(tmp_path / "k.jpg")
+    assert _read_jpeg_direct(tmp_path / "k.jpg") is None
+    np.testing.assert_array_equal(read_image(tmp_path / "k.jpg"), _pillow_luminance(tmp_path / "k.jpg"))
+    # a multi-picture file (MPO, two frames): refused as before, in one line
+    Image.fromarray(rgb).save(tmp_path / "two.jpg", format="MPO", save_all=True,
+                              append_images=[Image.fromarray(rgb[::-1])])
+    assert _read_jpeg_direct(tmp_path / "two.jpg") is None
+    with pytest.raises(ShipstarError, match="2 frames") as info:
+        read_image(tmp_path / "two.jpg")
+    assert "\n" not in str(info.value)
+    # truncated: Pillow's one-line error, not a half-decoded image
+    data = (tmp_path / "c.jpg").read_bytes()
+    (tmp_path / "cut.jpg").write_bytes(data[:len(data) // 2])
+    assert _read_jpeg_direct(tmp_path / "cut.jpg") is None
+    with pytest.raises(ShipstarError, match="JPEG") as info:
+        read_image(tmp_path / "cut.jpg")
+    assert "\n" not in str(info.value)
+
+
 # ---------------------------------------------------------------- real photographs
 
 # (min, max) star counts, checked by eye on overlays of the detections: JPEG artefacts,
@@ -384,6 +433,13 @@ REAL_COUNTS = {
 @pytest.mark.parametrize("name", sorted(REAL_COUNTS))
 def test_real_photographs(name):
     image = read_image(REAL_IMAGES / name)
+    # decoded by libjpeg-turbo directly: every pixel as Pillow decodes it
+    from shipstar.extract._io import _read_jpeg_direct
+
+    direct = _read_jpeg_direct(REAL_IMAGES / name)
+    assert direct is not None
+    np.testing.assert_array_equal(direct, _pillow_luminance(REAL_IMAGES / name))
+    np.testing.assert_array_equal(image, direct)
     result = extract_stars(image)
     lo, hi = REAL_COUNTS[name]
     assert lo <= len(result) <= hi
