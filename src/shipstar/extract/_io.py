@@ -167,8 +167,8 @@ def read_image(path) -> np.ndarray:
 
 def read_image_any(path, *, writable: bool) -> np.ndarray:
     """:func:`read_image`, with ``writable=False`` allowed to return a read-only array
-    (a PNG, TIFF or JPEG is then not copied out of Pillow's bytes: what a one-shot solve
-    reads)."""
+    (an image that Pillow reads, a PNG or TIFF say, is then not copied out of Pillow's
+    bytes: what a one-shot solve reads)."""
     path = Path(path)
     kind = _sniff(path)
     if kind == "FITS":
