@@ -290,3 +290,23 @@ def test_tracking_alternating_cameras_and_prior_errors_never_reuses_stale_gates(
                        prior_error_rad=err_deg * DEG2RAD)
         _same(fast, ref)
         assert fast.solved
+
+
+def test_the_compiled_tracking_entries_refuse_a_cell_list_of_another_length(db12):
+    # the entries tell uint16 from uint32 cell lists by their length against cell_start's
+    # last offset; a list of neither length is refused before anything is read from it
+    from shipstar.identify import _ckernels
+
+    b = _DbBuffers(db12)
+    C = np.eye(3)
+    out_C = np.empty((3, 3))
+    t, w = np.zeros((4, 2)), np.tile([1.0, 0.0, 0.0], (4, 1))
+    star, hip = np.empty(4, dtype=np.int64), np.empty(4, dtype=np.int64)
+    for cells in (b.cell_index[:-1], b.cell_index[:-1].astype(np.uint32), b.cell_index.astype(np.uint64)):
+        with pytest.raises(ValueError, match="neither uint16 nor uint32"):
+            _ckernels.track_solve(t, w, np.empty((0, 2)), C, b.cell_u, b.cell_start, cells, np.zeros(3, np.int64),
+                                  np.zeros(9), out_C, np.empty(0, np.int64), b.hip, star, hip)
+        with pytest.raises(ValueError, match="neither uint16 nor uint32"):
+            _ckernels.track_pinhole(np.zeros((4, 2)), np.array([0.0, 0.0, 0.01, 50.0]), C, b.cell_u, b.cell_start,
+                                    cells, np.array([b.grid_n, 3, 10, 4], np.int64), np.zeros(9), out_C,
+                                    np.empty((4, 3)), b.hip, star, hip)

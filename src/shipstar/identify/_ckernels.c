@@ -1624,6 +1624,13 @@ static PyObject *track_result(int rc, const TrackOut *out, const long *img, cons
                          rms, 0.0);
 }
 
+/* NULL with ValueError: a cell list that is neither uint16 nor uint32 rows of cell_start's count */
+static PyObject *bad_cell_list(const char *entry)
+{
+    PyErr_Format(PyExc_ValueError, "%s: cell_index is neither uint16 nor uint32 of cell_start's rows", entry);
+    return NULL;
+}
+
 /* track_solve(t, w, t_more, C_prior, cell_u, cell_start, cell_index, iparams, dparams,
  *             out_C, usable, hip_db, out_star, out_hip): t_more (n_more, 2) the usable
  *             detections beyond the n used (fainter; only a nearer one of them unnames
@@ -1644,22 +1651,14 @@ static PyObject *py_track_solve(PyObject *self, PyObject *args)
     memset(&out, 0, sizeof out);
     int rc = -1, ci16 = cell_list_u16(&bcs, &bci);
     double rms = NAN;
-    if (ci16 < 0) {
-        free(img); free(cat);
-        PyBuffer_Release(&bt); PyBuffer_Release(&bw); PyBuffer_Release(&bmore); PyBuffer_Release(&bc);
-        PyBuffer_Release(&bu); PyBuffer_Release(&bcs); PyBuffer_Release(&bci); PyBuffer_Release(&ip);
-        PyBuffer_Release(&dp); PyBuffer_Release(&oc); PyBuffer_Release(&bus); PyBuffer_Release(&bh);
-        PyBuffer_Release(&ostar); PyBuffer_Release(&ohip);
-        PyErr_SetString(PyExc_ValueError, "track_solve: cell_index is neither uint16 nor uint32 of cell_start's rows");
-        return NULL;
-    }
-    if (img && cat) {
+    if (img && cat && ci16 >= 0) {
         Py_BEGIN_ALLOW_THREADS
         rc = track_core(bt.buf, bw.buf, n, bmore.buf, n_more, bc.buf, bu.buf, bcs.buf, bci.buf, ci16, ip.buf,
                         dp.buf, &out, img, cat, &rms);
         Py_END_ALLOW_THREADS
     }
-    PyObject *res = track_result(rc, &out, img, cat, rms, &oc, &bus, &bh, &ostar, &ohip);
+    PyObject *res = ci16 < 0 ? bad_cell_list("track_solve")
+                             : track_result(rc, &out, img, cat, rms, &oc, &bus, &bh, &ostar, &ohip);
     free(img); free(cat);
     PyBuffer_Release(&bt); PyBuffer_Release(&bw); PyBuffer_Release(&bmore); PyBuffer_Release(&bc);
     PyBuffer_Release(&bu); PyBuffer_Release(&bcs); PyBuffer_Release(&bci); PyBuffer_Release(&ip);
@@ -1689,16 +1688,7 @@ static PyObject *py_track_pinhole(PyObject *self, PyObject *args)
     memset(&out, 0, sizeof out);
     int rc = -1, finite = 0, ci16 = cell_list_u16(&bcs, &bci);
     double rms = NAN;
-    if (ci16 < 0) {
-        free(img); free(cat); free(t);
-        PyBuffer_Release(&bx); PyBuffer_Release(&bcam); PyBuffer_Release(&bc); PyBuffer_Release(&bu);
-        PyBuffer_Release(&bcs); PyBuffer_Release(&bci); PyBuffer_Release(&ip); PyBuffer_Release(&dp);
-        PyBuffer_Release(&oc); PyBuffer_Release(&ou); PyBuffer_Release(&bh); PyBuffer_Release(&ostar);
-        PyBuffer_Release(&ohip);
-        PyErr_SetString(PyExc_ValueError, "track_pinhole: cell_index is neither uint16 nor uint32 of cell_start's rows");
-        return NULL;
-    }
-    if (img && cat && t && m <= n && (long)(ou.len / (3 * sizeof(double))) == n) {
+    if (img && cat && t && ci16 >= 0 && m <= n && (long)(ou.len / (3 * sizeof(double))) == n) {
         Py_BEGIN_ALLOW_THREADS
         finite = unproject_rows(bx.buf, n, bcam.buf, ou.buf, t);
         if (finite)
@@ -1707,7 +1697,8 @@ static PyObject *py_track_pinhole(PyObject *self, PyObject *args)
         Py_END_ALLOW_THREADS
     }
     PyObject *res;
-    if (img && cat && t && !finite && rc == -1 && m <= n) { Py_INCREF(Py_None); res = Py_None; }
+    if (ci16 < 0) res = bad_cell_list("track_pinhole");
+    else if (img && cat && t && !finite && rc == -1 && m <= n) { Py_INCREF(Py_None); res = Py_None; }
     else {
         Py_buffer none_used;
         memset(&none_used, 0, sizeof none_used);
