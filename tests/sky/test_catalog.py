@@ -500,3 +500,61 @@ def test_reader_rejects_bad_files(tmp_path):
     garbage.write_bytes(bytes(data))
     with pytest.raises(ShipstarError, match="Hpmag"):
         read_hip2(garbage)
+
+
+def _sha_identity(path: pathlib.Path) -> str:
+    """The identity :func:`catalog.source_identity` documents, computed here: name, size,
+    SHA-256 of the first and last MiB."""
+    import hashlib
+
+    data = path.read_bytes()
+    span = 1 << 20
+    h = hashlib.sha256(data[:span] + (data[max(span, len(data) - span):] if len(data) > span else b""))
+    return f"{path.name}|{len(data)}|{h.hexdigest()[:24]}"
+
+
+def test_a_catalog_files_identity_is_stored_by_its_stat_and_hashed_again_when_it_changes(tmp_path, monkeypatch):
+    import json
+    import time
+
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("SHIPSTAR_CACHE_DIR", str(cache))
+    monkeypatch.setattr(catalog, "_IDENTITY_MEMO", {})
+    src = tmp_path / "hip2.dat"
+    src.write_bytes(np.random.default_rng(1).bytes(3 << 20))
+    ident = catalog.source_identity(src)
+    assert ident == _sha_identity(src)
+    stored = json.loads((cache / catalog.IDENTITY_FILE).read_text())
+    assert stored[str(src)]["identity"] == ident
+    # a new process (no memory) takes the stored record while the file's stat is unchanged:
+    # shown with a record naming another digest, which only the stored file can give
+    stored[str(src)]["identity"] = f"hip2.dat|{3 << 20}|{'0' * 24}"
+    (cache / catalog.IDENTITY_FILE).write_text(json.dumps(stored))
+    monkeypatch.setattr(catalog, "_IDENTITY_MEMO", {})
+    assert catalog.source_identity(src) == f"hip2.dat|{3 << 20}|{'0' * 24}"
+    # the file rewritten with other bytes of the same size (its mtime put back as it was):
+    # its status-change time moved, so it is hashed again and the record replaced
+    st = src.stat()
+    time.sleep(0.01)
+    data = bytearray(src.read_bytes())
+    data[10] ^= 0xFF
+    src.write_bytes(bytes(data))
+    os.utime(src, ns=(st.st_atime_ns, st.st_mtime_ns))
+    monkeypatch.setattr(catalog, "_IDENTITY_MEMO", {})
+    new = catalog.source_identity(src)
+    assert new == _sha_identity(src) and new != ident
+    assert json.loads((cache / catalog.IDENTITY_FILE).read_text())[str(src)]["identity"] == new
+    # a corrupt record file: hashed again and rewritten; an unwritable cache: still the identity
+    (cache / catalog.IDENTITY_FILE).write_text("{not json")
+    monkeypatch.setattr(catalog, "_IDENTITY_MEMO", {})
+    assert catalog.source_identity(src) == new
+    assert json.loads((cache / catalog.IDENTITY_FILE).read_text())[str(src)]["identity"] == new
+    blocker = tmp_path / "not_a_dir"
+    blocker.write_text("x")
+    monkeypatch.setenv("SHIPSTAR_CACHE_DIR", str(blocker / "cache"))
+    monkeypatch.setattr(catalog, "_IDENTITY_MEMO", {})
+    assert catalog.source_identity(src) == new
+    # the record file is one of the cache's files (listed and cleared with it)
+    from shipstar.identify._database import cache_files
+
+    assert [f.path.name for f in cache_files(cache)] == [catalog.IDENTITY_FILE]
