@@ -20,7 +20,6 @@ a segment), the low bits are kept per pattern as ``uint16``.  A pattern costs 10
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import time
@@ -29,6 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from shipstar._digest import sha256_hex
 from shipstar.errors import ShipstarError
 from shipstar.identify import _patterns as pat
 from shipstar.identify import _skygrid
@@ -238,7 +238,7 @@ def _sorted_magnitudes() -> np.ndarray:
     key = _catalog_source()
     if _SORTED_MAG[0] == key:
         return _SORTED_MAG[1]
-    path = cache_dir() / f"hipmag_v1_{hashlib.sha256(key.encode()).hexdigest()[:20]}.npy"
+    path = cache_dir() / f"hipmag_v1_{sha256_hex(key.encode())[:20]}.npy"
     mag = None
     try:
         mag = np.load(path, allow_pickle=False)
@@ -325,6 +325,8 @@ def _index_patterns(u, patterns, params: DatabaseParams):
 
 
 def _catalog_digest(catalog) -> str:
+    import hashlib                      # (large input: OpenSSL's SHA-256; building only)
+
     h = hashlib.sha256()
     h.update(np.ascontiguousarray(catalog.hip, dtype=np.int64).tobytes())
     h.update(np.ascontiguousarray(catalog.mag, dtype=np.float64).tobytes())
@@ -397,7 +399,7 @@ CACHE_PATTERNS = ("identify/stardb_*", "hip2_v*_*.npz", "nav_v*_*.npz", "hipmag_
 def _cache_path(params: DatabaseParams):
     from shipstar.sky.catalog import cache_dir
 
-    digest = hashlib.sha256(params.as_json().encode()).hexdigest()[:20]
+    digest = sha256_hex(params.as_json().encode())[:20]
     return cache_dir() / "identify" / f"stardb_v{DATABASE_VERSION}f{_FILE_FORMAT}_{digest}.bin"
 
 
