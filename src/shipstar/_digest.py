@@ -10,23 +10,22 @@ it is slower on large inputs (~2x on 2 MiB), which keep ``hashlib``.
 
 from __future__ import annotations
 
+import functools
+
 __all__ = ["sha256_hex"]
 
 
-_SHA256 = []          # the constructor, found once
-
-
+@functools.cache
 def _constructor():
-    if not _SHA256:
+    """The SHA-256 constructor (found once)."""
+    try:
+        from _sha2 import sha256                   # CPython >= 3.12
+    except ImportError:
         try:
-            from _sha2 import sha256                   # CPython >= 3.12
+            from _sha256 import sha256             # CPython <= 3.11
         except ImportError:
-            try:
-                from _sha256 import sha256             # CPython <= 3.11
-            except ImportError:
-                from hashlib import sha256             # any other Python
-        _SHA256.append(sha256)
-    return _SHA256[0]
+            from hashlib import sha256             # any other Python
+    return sha256
 
 
 def sha256_hex(data: bytes) -> str:

@@ -1802,17 +1802,13 @@ static int db_check_gather(const void *pstars, int p16, long P, const uint16_t *
     for (long h = 0; h < n_seg; h++) bad |= khs[h + 1] < khs[h];
     for (long c = 0; c < n_cells; c++) bad |= cs[c + 1] < cs[c];
     if (bad) return 1;
-    uint32_t mx = 0;
-    if (ci16) {
-        const uint16_t *c16 = ci;
-        uint16_t m16 = 0;
-        for (long q = 0; q < M; q++) m16 = c16[q] > m16 ? c16[q] : m16;
-        mx = m16;
-    } else {
-        const uint32_t *c32 = ci;
-        for (long q = 0; q < M; q++) mx = c32[q] > mx ? c32[q] : mx;
+    long mx_cell = 0;
+    for (long q = 0; q < M; q++) {
+        long r = cell_row(ci, ci16, q);
+        mx_cell = r > mx_cell ? r : mx_cell;
     }
-    if (M > 0 && (long)mx >= S) return 1;
+    if (M > 0 && mx_cell >= S) return 1;
+    uint32_t mx = 0;
     Db db;
     memset(&db, 0, sizeof db);
     db.pstars = pstars;

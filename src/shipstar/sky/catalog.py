@@ -400,7 +400,7 @@ def source_identity(source) -> str:
     source = pathlib.Path(source)
     try:
         st = source.stat()
-        memo = (str(source), st.st_size, st.st_mtime_ns)
+        memo = (str(source), *_stat_key(st))          # the stored record's test, in memory
         if memo in _IDENTITY_MEMO:
             return _IDENTITY_MEMO[memo]
         table_path, table = _identity_table()
