@@ -55,6 +55,11 @@ _MAX_PRIOR_GAP_S = 2.0
 #: The smear hint (:meth:`SensorProcessor._smear_hint_px`) is given from this long (px)
 #: (up to the extraction's longest, ``extract._core.MAX_SMEAR_PX``) ...
 SMEAR_HINT_MIN_PX = 3.0
+#: A predicted smear shorter than this (px) is given as a zero hint: the frame's stars are
+#: points, and the extraction does not estimate the smear (it takes a frame as smeared
+#: only from ``extract._smear.AUTO_SMEAR_MIN_PX``, 3 px: a 0.5 px margin, against the
+#: prediction's ~0.1 px error at 3 px).
+POINT_HINT_MAX_PX = 2.5
 #: ... from a motion fit at most this old (s).
 _MAX_SMEAR_HINT_GAP_S = 0.5
 #: Windowed tracking (``PipelineOptions.windowed_full_frame_every``): the windows must
@@ -479,12 +484,19 @@ class SensorProcessor:
         spares it the point-source pass and the smear's estimate, which are then thrown
         away.  The extraction detects with the hint and measures the common smear again
         from the streaks it finds (docs/extraction.md, *Smeared frames*), so a hint a few
-        per cent off costs nothing.
+        per cent off costs nothing.  A predicted smear shorter than
+        :data:`POINT_HINT_MAX_PX` gives ``(0, 0)``: point sources, the smear's estimate
+        skipped (it would have found the frame unsmeared: the same stars).
         """
         from shipstar.extract._core import MAX_SMEAR_PX
 
         smear = self._predicted_smear_px(frame, t_s)
-        if smear is None or not SMEAR_HINT_MIN_PX <= math.hypot(*smear) <= MAX_SMEAR_PX:
+        if smear is None:
+            return None
+        length = math.hypot(*smear)
+        if length < POINT_HINT_MAX_PX:
+            return np.zeros(2)
+        if not SMEAR_HINT_MIN_PX <= length <= MAX_SMEAR_PX:
             return None
         return smear
 
