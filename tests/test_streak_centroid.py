@@ -194,3 +194,50 @@ def test_smear_hint_is_the_true_image_motion_and_leaves_the_attitudes_as_good(mo
         return np.sqrt(np.nanmean(err ** 2, axis=0))
 
     assert np.all(rms(with_hint) <= 1.05 * rms(without) + 0.02), (rms(with_hint), rms(without))
+
+
+def test_short_predicted_smear_is_a_point_hint_that_finds_the_same_stars(monkeypatch):
+    """A smear predicted shorter than ``POINT_HINT_MAX_PX`` is given as ``(0, 0)``: the true
+    image motion is then under the 3 px from which the extraction's own estimate takes a
+    frame as smeared, and the frame's stars are those the extraction finds without a hint
+    (it would have estimated the smear and found the frame unsmeared)."""
+    import sys
+    from pathlib import Path
+
+    from shipstar.extract._core import frame_extraction
+    from shipstar.extract._smear import AUTO_SMEAR_MIN_PX
+    from shipstar.pipeline import PipelineOptions, process_session
+    from shipstar.pipeline import _sensor
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from test_pipeline import _image_sea_session
+
+    T = 0.01
+    spec, frames, track, weather, truth, configs = _image_sea_session(6.0, T)
+    hints = []
+    predict = _sensor.SensorProcessor._smear_hint_px
+
+    def recorded(self, frame, t_s):
+        smear = predict(self, frame, t_s)
+        hints.append((self.config.name, t_s, frame, smear))
+        return smear
+
+    monkeypatch.setattr(_sensor.SensorProcessor, "_smear_hint_px", recorded)
+    process_session(configs, frames, track, weather, PipelineOptions())
+    zero = [h for h in hints if h[3] is not None and not np.any(h[3])]
+    assert len(zero) >= 5, [h[3] for h in hints]
+    for name, t_s, frame, _ in zero:
+        s = spec.sensor(name)
+        cam = s.camera
+        u0 = cam.unproject(np.array([[0.5 * (cam.width_px - 1), 0.5 * (cam.height_px - 1)]]))[0]
+        C = [spec.motion.C_hor_from_deck(t) @ s.C_deck_from_sensor for t in (t_s - T / 2, t_s, t_s + T / 2)]
+        v_hor = C[1] @ u0
+        true = np.diff(cam.project(np.array([C[0].T @ v_hor, C[2].T @ v_hor])), axis=0)[0]
+        assert np.hypot(*true) < _sensor.POINT_HINT_MAX_PX + 0.2 < AUTO_SMEAR_MIN_PX, (name, t_s, true)
+        kw = dict(threshold_sigma=PipelineOptions().threshold_sigma, psf_sigma_px=cam.psf_sigma_px,
+                  gain_e_per_adu=cam.gain_e_per_adu)
+        hinted = frame_extraction(frame.image, smear_px=np.zeros(2), **kw)[0]
+        free = frame_extraction(frame.image, **kw)[0]
+        assert np.array_equal(free.smear_px, np.zeros(2))
+        np.testing.assert_array_equal(hinted.xy_px, free.xy_px)
+        np.testing.assert_array_equal(hinted.xy_cov_px2, free.xy_cov_px2)
