@@ -49,6 +49,12 @@ _CALIBRATION_STARS = 12
 #: or after this many iterations (the few that take longer are left out).
 _CALIBRATION_CONVERGED = 0.2
 _CALIBRATION_ITERATIONS = 8
+#: ... and a fit whose flux is measured below this SNR (its own covariance) is not used: an
+#: object at the noise's level (the binned frame's detections in a faint frame) has a smear
+#: and a sigma that its own errors leave undetermined (two such fits of a 1.7 px frame, flux
+#: 2.7-3.2 sigma, agreed on an 8 px smear within their 2 px errors and outvoted the one
+#: star, flux 110 sigma, that measured it within 0.06 px).
+_CALIBRATION_MIN_SNR = 5.0
 #: Smears at least this long (px) get a smear field fitted (shorter: its variation is negligible).
 FIELD_MIN_PX = 6.0
 #: Stars with at least this line-filter SNR give the smear field, the brightest ``_FIELD_STARS``.
@@ -118,7 +124,7 @@ def calibrate(image, mesh, bad, col, row, smear, sigma, inv_gain, *, fit_smear):
     their smear vectors from the median one, px (``inf`` without ``fit_smear``).
     """
     # the streak fits are imported here: a frame of point sources never needs them
-    from shipstar.extract._streak import (BG, DX, SIGMA, fit_streaks, gather_streak_windows, path_points,
+    from shipstar.extract._streak import (BG, DX, FLUX, SIGMA, fit_streaks, gather_streak_windows, path_points,
                                           start_parameters, streak_half_sizes, streak_normal_equations)
 
     fit_sigma = sigma is None
@@ -139,7 +145,7 @@ def calibrate(image, mesh, bad, col, row, smear, sigma, inv_gain, *, fit_smear):
         fit = fit_streaks(win, start_parameters(win, col, row, sigma0, smear), nodes, fit_sigma=fit_sigma,
                           fit_smear=fit_smear, inv_gain=inv_gain or 0.0, max_iterations=_CALIBRATION_ITERATIONS,
                           converged_fraction=_CALIBRATION_CONVERGED)
-        p, ok = fit.p, fit.ok
+        p, ok = fit.p, fit.ok & _measured(fit.p[:, FLUX], fit.normal)
         if not np.any(ok):
             break
         if fit_smear:
@@ -161,6 +167,16 @@ def calibrate(image, mesh, bad, col, row, smear, sigma, inv_gain, *, fit_smear):
         if not (fit_smear and again):
             break
     return smear, sigma_out, gain_out, (n_ok, spread)
+
+
+def _measured(flux, normal):
+    """``(N,)`` bool: fits whose flux is measured at :data:`_CALIBRATION_MIN_SNR` or better
+    (the flux's variance from the inverse of each fit's normal matrix ``normal`` (N, k, k),
+    flux its third parameter)."""
+    if len(normal) == 0:
+        return np.zeros(0, dtype=bool)
+    with np.errstate(invalid="ignore"):
+        return flux >= _CALIBRATION_MIN_SNR * np.sqrt(_spd_inverse(normal)[:, 2, 2])
 
 
 def frame_smear(arr, mesh, stats, hint, sigma, inv_gain, saturated):
