@@ -643,7 +643,7 @@ def test_work_arrays_kept_between_frames_do_not_leak_into_results():
 
 
 def test_objects_at_the_noise_level_do_not_outvote_a_star_in_the_smear_calibration():
-    """``_smear.calibrate`` (the smear, PSF and gain from the brightest objects) uses only
+    """Without a hint, ``_smear.calibrate`` (the smear from the brightest objects) uses only
     fits whose flux it measures at ``_CALIBRATION_MIN_SNR`` (5) or better: one star of
     60 000 e smeared (1.0, 1.5) px, two objects of 300 e (flux ~3 sigma) smeared (6, 4) px.
     Before, their fits (smears undetermined within ~2 px) made 2 of the 3 and the median
@@ -660,7 +660,7 @@ def test_objects_at_the_noise_level_do_not_outvote_a_star_in_the_smear_calibrati
         mesh = estimate_mesh(img, quantum_adu=1.0)
         fitted, _, _, (n_ok, _) = _smear.calibrate(img, mesh, np.zeros(img.shape, dtype=bool), col, row,
                                                    np.array([1.3, 2.9]), A1.psf_sigma_px, 1.0 / A1.gain_e_per_adu,
-                                                   fit_smear=True)
+                                                   fit_smear=True, min_snr=_smear._CALIBRATION_MIN_SNR)
         assert n_ok == 1, (seed, n_ok)
         assert np.hypot(*(fitted - smear[0])) < 0.15, (seed, fitted)
 

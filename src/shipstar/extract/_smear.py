@@ -49,11 +49,13 @@ _CALIBRATION_STARS = 12
 #: or after this many iterations (the few that take longer are left out).
 _CALIBRATION_CONVERGED = 0.2
 _CALIBRATION_ITERATIONS = 8
-#: ... and a fit whose flux is measured below this SNR (its own covariance) is not used: an
-#: object at the noise's level (the binned frame's detections in a faint frame) has a smear
-#: and a sigma that its own errors leave undetermined (two such fits of a 1.7 px frame, flux
-#: 2.7-3.2 sigma, agreed on an 8 px smear within their 2 px errors and outvoted the one
-#: star, flux 110 sigma, that measured it within 0.06 px).
+#: Without a hint (:func:`frame_smear`), a fit whose flux is measured below this SNR (its own
+#: covariance) is not used: an object at the noise's level (the binned frame's detections in
+#: a faint frame) has a smear that its own errors leave undetermined (two such fits of a
+#: 1.7 px frame, flux 2.7-3.2 sigma, agreed on an 8 px smear within their 2 px errors and
+#: outvoted the one star, flux 110 sigma, that measured it within 0.06 px).  Not applied to
+#: a hint's refinement (``_smeared._refined_smear``), which keeps the hint unless 3 fits
+#: agree: there it cost the realistic session 0.02-0.04'' of joint RMS.
 _CALIBRATION_MIN_SNR = 5.0
 #: Smears at least this long (px) get a smear field fitted (shorter: its variation is negligible).
 FIELD_MIN_PX = 6.0
@@ -115,11 +117,11 @@ def binned_guess(arr):
     return guess * BIN_PX, cog
 
 
-def calibrate(image, mesh, bad, col, row, smear, sigma, inv_gain, *, fit_smear):
+def calibrate(image, mesh, bad, col, row, smear, sigma, inv_gain, *, fit_smear, min_snr=0.0):
     """Smear, PSF sigma and inverse gain from the brightest objects (``col``, ``row``: brightest first).
 
     ``sigma`` / ``inv_gain`` None means unknown (fitted / estimated); ``fit_smear`` refines
-    ``smear``. Returns ``(smear (2,), sigma, inv_gain, (n, spread))``: the inputs when
+    ``smear``; fits whose flux SNR is below ``min_snr`` are not used. Returns ``(smear (2,), sigma, inv_gain, (n, spread))``: the inputs when
     nothing converges; ``n`` objects whose fits gave the smear and the median distance of
     their smear vectors from the median one, px (``inf`` without ``fit_smear``).
     """
@@ -145,7 +147,7 @@ def calibrate(image, mesh, bad, col, row, smear, sigma, inv_gain, *, fit_smear):
         fit = fit_streaks(win, start_parameters(win, col, row, sigma0, smear), nodes, fit_sigma=fit_sigma,
                           fit_smear=fit_smear, inv_gain=inv_gain or 0.0, max_iterations=_CALIBRATION_ITERATIONS,
                           converged_fraction=_CALIBRATION_CONVERGED)
-        p, ok = fit.p, fit.ok & _measured(fit.p[:, FLUX], fit.normal)
+        p, ok = fit.p, fit.ok & _measured(fit.p[:, FLUX], fit.normal, min_snr)
         if not np.any(ok):
             break
         if fit_smear:
@@ -169,14 +171,14 @@ def calibrate(image, mesh, bad, col, row, smear, sigma, inv_gain, *, fit_smear):
     return smear, sigma_out, gain_out, (n_ok, spread)
 
 
-def _measured(flux, normal):
-    """``(N,)`` bool: fits whose flux is measured at :data:`_CALIBRATION_MIN_SNR` or better
-    (the flux's variance from the inverse of each fit's normal matrix ``normal`` (N, k, k),
-    flux its third parameter)."""
+def _measured(flux, normal, min_snr):
+    """``(N,)`` bool: fits whose flux is measured at ``min_snr`` or better (the flux's
+    variance from the inverse of each fit's normal matrix ``normal`` (N, k, k), flux its
+    third parameter)."""
     if len(normal) == 0:
         return np.zeros(0, dtype=bool)
     with np.errstate(invalid="ignore"):
-        return flux >= _CALIBRATION_MIN_SNR * np.sqrt(_spd_inverse(normal)[:, 2, 2])
+        return flux >= min_snr * np.sqrt(_spd_inverse(normal)[:, 2, 2])
 
 
 def frame_smear(arr, mesh, stats, hint, sigma, inv_gain, saturated):
@@ -200,7 +202,7 @@ def frame_smear(arr, mesh, stats, hint, sigma, inv_gain, saturated):
         return None, sigma, inv_gain
     col, row = np.rint(cog).astype(np.int64).T
     smear, sigma_f, gain_f, (n_ok, spread) = calibrate(arr, mesh, saturated, col, row, guess, sigma, inv_gain,
-                                                       fit_smear=True)
+                                                       fit_smear=True, min_snr=_CALIBRATION_MIN_SNR)
     length = math.hypot(*smear)
     if length < AUTO_SMEAR_MIN_PX or n_ok < 3 or spread > 0.2 * length + 0.5:
         return None, sigma, inv_gain
