@@ -150,41 +150,60 @@ def _rotvec_between(C_true, C_est):
     return rotation_vector_rad(np.asarray(C_true).T @ np.asarray(C_est))
 
 
-def test_smear_hint_is_the_true_image_motion_and_leaves_the_attitudes_as_good(monkeypatch):
-    """The pipeline's smear hint (``SensorProcessor._smear_hint_px``, from the sensor's motion
-    fitted to its own solved frames) against the simulator's true image motion of the image
-    centre over the exposure; and the session's joint attitudes with the hint against
-    those without it (the extraction then estimates the smear), both against the truth."""
+def _sea_session_with_hints(monkeypatch, duration_s, exposure_s):
+    """An image-level sea session (``test_pipeline._image_sea_session``) processed with the
+    pipeline's smear hints recorded: ``(spec, frames, track, weather, truth, configs, result,
+    hints)``, ``hints`` a list of ``(sensor name, t_s, frame, hint or None)``."""
     import sys
     from pathlib import Path
 
-    from shipstar.pipeline import PipelineOptions, attitude_errors_arcsec, method_series, process_session
+    from shipstar.pipeline import PipelineOptions, process_session
     from shipstar.pipeline import _sensor
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from test_pipeline import _image_sea_session
 
-    T = 0.03
-    spec, frames, track, weather, truth, configs = _image_sea_session(2.5, T)
+    spec, frames, track, weather, truth, configs = _image_sea_session(duration_s, exposure_s)
     hints = []
     predict = _sensor.SensorProcessor._smear_hint_px
 
     def recorded(self, frame, t_s):
         smear = predict(self, frame, t_s)
-        hints.append((self.config.name, t_s, smear))
+        hints.append((self.config.name, t_s, frame, smear))
         return smear
 
     monkeypatch.setattr(_sensor.SensorProcessor, "_smear_hint_px", recorded)
-    with_hint = process_session(configs, frames, track, weather, PipelineOptions())
-    given = [(name, t, s) for name, t, s in hints if s is not None]
+    result = process_session(configs, frames, track, weather, PipelineOptions())
+    monkeypatch.undo()
+    return spec, frames, track, weather, truth, configs, result, hints
+
+
+def _true_centre_motion_px(spec, name, t_s, exposure_s):
+    """(dx, dy) px: the simulator's image motion over the exposure of the star at the image
+    centre at mid-exposure ``t_s``."""
+    s = spec.sensor(name)
+    cam = s.camera
+    u0 = cam.unproject(np.array([[0.5 * (cam.width_px - 1), 0.5 * (cam.height_px - 1)]]))[0]
+    T = exposure_s
+    C = [spec.motion.C_hor_from_deck(t) @ s.C_deck_from_sensor for t in (t_s - T / 2, t_s, t_s + T / 2)]
+    v_hor = C[1] @ u0
+    return np.diff(cam.project(np.array([C[0].T @ v_hor, C[2].T @ v_hor])), axis=0)[0]
+
+
+def test_smear_hint_is_the_true_image_motion_and_leaves_the_attitudes_as_good(monkeypatch):
+    """The pipeline's smear hint (``SensorProcessor._smear_hint_px``, from the sensor's motion
+    fitted to its own solved frames) against the simulator's true image motion of the image
+    centre over the exposure; and the session's joint attitudes with the hint against
+    those without it (the extraction then estimates the smear), both against the truth."""
+    from shipstar.pipeline import PipelineOptions, attitude_errors_arcsec, method_series, process_session
+    from shipstar.pipeline import _sensor
+
+    T = 0.03
+    spec, frames, track, weather, truth, configs, with_hint, hints = _sea_session_with_hints(monkeypatch, 2.5, T)
+    given = [(name, t, s) for name, t, _, s in hints if s is not None and np.any(s)]
     assert len(given) >= 0.5 * len(hints)                      # 30 ms at sea: most frames are streaks
     for name, t_s, smear in given:
-        s = spec.sensor(name)
-        cam = s.camera
-        u0 = cam.unproject(np.array([[0.5 * (cam.width_px - 1), 0.5 * (cam.height_px - 1)]]))[0]
-        C = [spec.motion.C_hor_from_deck(t) @ s.C_deck_from_sensor for t in (t_s - T / 2, t_s, t_s + T / 2)]
-        v_hor = C[1] @ u0                                      # the star at the centre at mid-exposure
-        true = np.diff(cam.project(np.array([C[0].T @ v_hor, C[2].T @ v_hor])), axis=0)[0]
+        true = _true_centre_motion_px(spec, name, t_s, T)
         assert np.hypot(*(smear - true)) <= 0.05 * np.hypot(*true) + 0.1, (name, t_s, smear, true)
     monkeypatch.setattr(_sensor.SensorProcessor, "_smear_hint_px", lambda self, frame, t_s: None)
     without = process_session(configs, frames, track, weather, PipelineOptions())
@@ -201,39 +220,19 @@ def test_short_predicted_smear_is_a_point_hint_that_finds_the_same_stars(monkeyp
     image motion is then under the 3 px from which the extraction's own estimate takes a
     frame as smeared, and the frame's stars are those the extraction finds without a hint
     (it would have estimated the smear and found the frame unsmeared)."""
-    import sys
-    from pathlib import Path
-
     from shipstar.extract._core import frame_extraction
     from shipstar.extract._smear import AUTO_SMEAR_MIN_PX
-    from shipstar.pipeline import PipelineOptions, process_session
+    from shipstar.pipeline import PipelineOptions
     from shipstar.pipeline import _sensor
 
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from test_pipeline import _image_sea_session
-
     T = 0.01
-    spec, frames, track, weather, truth, configs = _image_sea_session(6.0, T)
-    hints = []
-    predict = _sensor.SensorProcessor._smear_hint_px
-
-    def recorded(self, frame, t_s):
-        smear = predict(self, frame, t_s)
-        hints.append((self.config.name, t_s, frame, smear))
-        return smear
-
-    monkeypatch.setattr(_sensor.SensorProcessor, "_smear_hint_px", recorded)
-    process_session(configs, frames, track, weather, PipelineOptions())
+    spec, *_, hints = _sea_session_with_hints(monkeypatch, 6.0, T)
     zero = [h for h in hints if h[3] is not None and not np.any(h[3])]
     assert len(zero) >= 5, [h[3] for h in hints]
     for name, t_s, frame, _ in zero:
-        s = spec.sensor(name)
-        cam = s.camera
-        u0 = cam.unproject(np.array([[0.5 * (cam.width_px - 1), 0.5 * (cam.height_px - 1)]]))[0]
-        C = [spec.motion.C_hor_from_deck(t) @ s.C_deck_from_sensor for t in (t_s - T / 2, t_s, t_s + T / 2)]
-        v_hor = C[1] @ u0
-        true = np.diff(cam.project(np.array([C[0].T @ v_hor, C[2].T @ v_hor])), axis=0)[0]
+        true = _true_centre_motion_px(spec, name, t_s, T)
         assert np.hypot(*true) < _sensor.POINT_HINT_MAX_PX + 0.2 < AUTO_SMEAR_MIN_PX, (name, t_s, true)
+        cam = spec.sensor(name).camera
         kw = dict(threshold_sigma=PipelineOptions().threshold_sigma, psf_sigma_px=cam.psf_sigma_px,
                   gain_e_per_adu=cam.gain_e_per_adu)
         hinted = frame_extraction(frame.image, smear_px=np.zeros(2), **kw)[0]
