@@ -121,7 +121,8 @@ def calibrate(image, mesh, bad, col, row, smear, sigma, inv_gain, *, fit_smear, 
     """Smear, PSF sigma and inverse gain from the brightest objects (``col``, ``row``: brightest first).
 
     ``sigma`` / ``inv_gain`` None means unknown (fitted / estimated); ``fit_smear`` refines
-    ``smear``; fits whose flux SNR is below ``min_snr`` are not used. Returns ``(smear (2,), sigma, inv_gain, (n, spread))``: the inputs when
+    ``smear``; fits whose flux SNR is below ``min_snr`` are not used (0: every converged
+    fit). Returns ``(smear (2,), sigma, inv_gain, (n, spread))``: the inputs when
     nothing converges; ``n`` objects whose fits gave the smear and the median distance of
     their smear vectors from the median one, px (``inf`` without ``fit_smear``).
     """
@@ -147,7 +148,7 @@ def calibrate(image, mesh, bad, col, row, smear, sigma, inv_gain, *, fit_smear, 
         fit = fit_streaks(win, start_parameters(win, col, row, sigma0, smear), nodes, fit_sigma=fit_sigma,
                           fit_smear=fit_smear, inv_gain=inv_gain or 0.0, max_iterations=_CALIBRATION_ITERATIONS,
                           converged_fraction=_CALIBRATION_CONVERGED)
-        p, ok = fit.p, fit.ok & _measured(fit.p[:, FLUX], fit.normal, min_snr)
+        p, ok = fit.p, (fit.ok & _measured(fit.p[:, FLUX], fit.normal, min_snr)) if min_snr > 0.0 else fit.ok
         if not np.any(ok):
             break
         if fit_smear:

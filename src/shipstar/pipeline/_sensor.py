@@ -55,13 +55,13 @@ _MAX_PRIOR_GAP_S = 2.0
 #: The smear hint (:meth:`SensorProcessor._smear_hint_px`) is given from this long (px)
 #: (up to the extraction's longest, ``extract._core.MAX_SMEAR_PX``) ...
 SMEAR_HINT_MIN_PX = 3.0
+#: ... from a motion fit at most this old (s).
+_MAX_SMEAR_HINT_GAP_S = 0.5
 #: A predicted smear shorter than this (px) is given as a zero hint: the frame's stars are
 #: points, and the extraction does not estimate the smear (it takes a frame as smeared
 #: only from ``extract._smear.AUTO_SMEAR_MIN_PX``, 3 px: a 0.5 px margin, against the
 #: prediction's ~0.1 px error at 3 px).
 POINT_HINT_MAX_PX = 2.5
-#: ... from a motion fit at most this old (s).
-_MAX_SMEAR_HINT_GAP_S = 0.5
 #: Windowed tracking (``PipelineOptions.windowed_full_frame_every``): the windows must
 #: find at least this fraction of the stars the last full frame identified, else the
 #: frame is extracted whole (cloud coming, a prediction gone wrong) ...
