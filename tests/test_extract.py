@@ -677,6 +677,37 @@ def test_smear_hints_short_hints_and_bad_hints():
         assert "\n" not in str(info.value)
 
 
+def test_a_trusted_smear_hint_is_used_as_it_is_and_measures_as_well(monkeypatch):
+    """``smear_sigma_px`` at most ``TRUSTED_SMEAR_SIGMA_PX``: the common smear is not measured
+    again from the streaks (``_smeared._refined_smear`` not called) and the centroids are as
+    close to the truth as with the measurement (the true smear given: the hint is exact); a
+    larger stated error, or none, measures it again; a bad one is a one-line error."""
+    from shipstar.extract import _smeared
+    from shipstar.extract._core import TRUSTED_SMEAR_SIGMA_PX
+
+    calls = []
+    refined = _smeared._refined_smear
+    monkeypatch.setattr(_smeared, "_refined_smear", lambda *a, **k: calls.append(1) or refined(*a, **k))
+    image, xy, signal, smear = smeared_grid_frame(2.0, seed=67)
+    kwargs = dict(psf_sigma_px=A1.psf_sigma_px, gain_e_per_adu=A1.gain_e_per_adu, smear_px=np.median(smear, axis=0))
+    stats = {}
+    for sigma_px, n_calls in ((TRUSTED_SMEAR_SIGMA_PX, 0), (0.0, 0), (0.2, 1), (None, 1)):
+        calls.clear()
+        result = extract_stars(image, smear_sigma_px=sigma_px, **kwargs)
+        assert len(calls) == n_calls, sigma_px
+        stats[sigma_px] = smeared_statistics(result, xy, signal, smear)
+    trusted, measured = stats[TRUSTED_SMEAR_SIGMA_PX], stats[None]
+    assert trusted["complete"] >= 0.95 and trusted["false"] <= 2
+    for name in ("along", "across"):
+        assert abs(trusted[f"bias_{name}"]) < 4 * trusted[f"se_{name}"] + 0.005
+        assert trusted[f"ratio_{name}"] <= 1.3                                   # near the Cramer-Rao bound
+        assert trusted[f"ratio_{name}"] <= measured[f"ratio_{name}"] * 1.02 + 0.01, (name, trusted, measured)
+    for bad in (-0.1, np.nan, np.inf):
+        with pytest.raises(ShipstarError, match="smear_sigma_px") as info:
+            extract_stars(image, smear_sigma_px=bad, **kwargs)
+        assert "\n" not in str(info.value)
+
+
 def test_smeared_frames_without_stars_hot_pixels_or_cosmic_rays_give_nothing():
     rng = np.random.default_rng(61)
     fo = FalseObjects(cosmic_ray_count=40, cosmic_ray_e=8000.0)

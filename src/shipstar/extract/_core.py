@@ -30,6 +30,11 @@ MAX_SMEAR_PX = 200.0
 MAX_ABS_ADU = 3e38
 #: Largest fraction of bad (non-finite or out-of-range) pixels that are masked rather than refused.
 MAX_BAD_FRACTION = 0.01
+#: A smear hint whose stated error (``smear_sigma_px``) is at most this (px) is used as it is:
+#: the common smear measured again from the frame's brightest streaks (free-smear fits of up
+#: to 12 of them) is worse than that (0.1 px median error, 0.2 px at the 90th percentile,
+#: against the simulator's truth in ``bench_throughput``'s session at sea).
+TRUSTED_SMEAR_SIGMA_PX = 0.05
 
 
 def _prepare(image):
@@ -100,10 +105,13 @@ def _check_args(threshold_sigma, max_stars, refine, psf_sigma_px, gain_e_per_adu
         raise ShipstarError(f"gain_e_per_adu must be finite and > 0, got {gain_e_per_adu}")
 
 
-def _check_smear(smear_px):
-    """The caller's smear hint as a (2,) array, or None."""
+def _check_smear(smear_px, smear_sigma_px=None):
+    """The caller's smear hint as a (2,) array, or None; and whether it is trusted as it is
+    (its stated error ``smear_sigma_px`` at most :data:`TRUSTED_SMEAR_SIGMA_PX`)."""
+    if smear_sigma_px is not None and not (math.isfinite(smear_sigma_px) and smear_sigma_px >= 0.0):
+        raise ShipstarError(f"smear_sigma_px must be finite and >= 0, got {smear_sigma_px}")
     if smear_px is None:
-        return None
+        return None, False
     try:
         smear = np.array(smear_px, dtype=float).reshape(-1)
     except (TypeError, ValueError):
@@ -112,11 +120,12 @@ def _check_smear(smear_px):
         raise ShipstarError(f"smear_px must be two finite numbers (dx, dy) in px, got {smear_px!r}")
     if math.hypot(*smear) > MAX_SMEAR_PX:
         raise ShipstarError(f"smear_px is {math.hypot(*smear):.1f} px long; at most {MAX_SMEAR_PX:g} px is supported")
-    return smear
+    return smear, smear_sigma_px is not None and smear_sigma_px <= TRUSTED_SMEAR_SIGMA_PX
 
 
 def extract_stars(image, *, threshold_sigma=5.0, max_stars=None, refine="gaussian",
-                  psf_sigma_px=None, gain_e_per_adu=None, saturation_adu=None, smear_px=None) -> Extraction:
+                  psf_sigma_px=None, gain_e_per_adu=None, saturation_adu=None, smear_px=None,
+                  smear_sigma_px=None) -> Extraction:
     """Find the stars in a frame and measure their sub-pixel centroids.
 
     Parameters
@@ -156,6 +165,11 @@ def extract_stars(image, *, threshold_sigma=5.0, max_stars=None, refine="gaussia
         pass over the frame). Not given, the smear is estimated from the
         brightest objects (second moments, then fits), and the same is done when it is
         3 px or longer and the fits agree on it (``smear_px`` of the result).
+    smear_sigma_px : float, optional
+        The error (1 sigma, px) of ``smear_px``, e.g. from the sensor's motion fitted to
+        its last frames.  At most ``TRUSTED_SMEAR_SIGMA_PX`` (0.05 px), the hint is used as
+        it is: the common smear is not measured again from the streaks (that measurement
+        is worse, ~0.1 px).
 
     Returns
     -------
@@ -171,18 +185,18 @@ def extract_stars(image, *, threshold_sigma=5.0, max_stars=None, refine="gaussia
     """
     return frame_extraction(image, threshold_sigma=threshold_sigma, max_stars=max_stars, refine=refine,
                             psf_sigma_px=psf_sigma_px, gain_e_per_adu=gain_e_per_adu,
-                            saturation_adu=saturation_adu, smear_px=smear_px)[0]
+                            saturation_adu=saturation_adu, smear_px=smear_px, smear_sigma_px=smear_sigma_px)[0]
 
 
 def frame_extraction(image, *, threshold_sigma=5.0, max_stars=None, refine="gaussian", psf_sigma_px=None,
-                     gain_e_per_adu=None, saturation_adu=None, smear_px=None):
+                     gain_e_per_adu=None, saturation_adu=None, smear_px=None, smear_sigma_px=None):
     """:func:`extract_stars`, and what it learnt of the frame: ``(Extraction, mesh,
     saturation_adu)`` -- the background and noise :class:`~shipstar.extract._background.Mesh`
     and the saturation level (given, or the top of the ADC range the data fit in; inf for
     float data), which the windowed extraction of the next frames
     (:mod:`shipstar.extract._windowed`) reuses."""
     _check_args(threshold_sigma, max_stars, refine, psf_sigma_px, gain_e_per_adu)
-    hint = _check_smear(smear_px)
+    hint, trusted = _check_smear(smear_px, smear_sigma_px)
     arr, quantum = _prepare(image)
     saturation, n_sat = _saturation(arr, saturation_adu)
     if n_sat >= OVEREXPOSED_FRACTION * arr.size:
@@ -198,7 +212,7 @@ def frame_extraction(image, *, threshold_sigma=5.0, max_stars=None, refine="gaus
         from shipstar.extract._smeared import extract_smeared   # (not loaded for point sources)
 
         res, sigma = extract_smeared(arr, mesh, None, hint, sigma_given, inv_gain, saturation,
-                                     float(threshold_sigma), refine, refine_smear=True)
+                                     float(threshold_sigma), refine, refine_smear=not trusted)
         return _result(res, mesh, sigma, arr.shape, max_stars, hint), mesh, level
     peaks, labels_of_peaks, idx, labels = detect_objects(arr, mesh, float(threshold_sigma))
     stats = component_stats(arr, mesh, idx, labels, labels_of_peaks, saturation)
@@ -208,7 +222,7 @@ def frame_extraction(image, *, threshold_sigma=5.0, max_stars=None, refine="gaus
         from shipstar.extract._smeared import extract_smeared
 
         res, sigma = extract_smeared(arr, mesh, stats, smear, sigma_s, gain_s, saturation, float(threshold_sigma),
-                                     refine, refine_smear=hint is not None)
+                                     refine, refine_smear=hint is not None and not trusted)
         return _result(res, mesh, sigma, arr.shape, max_stars, smear), mesh, level
     res, sigma = measure_points(arr, mesh, peaks, stats, refine, psf_sigma_px, inv_gain)
     return _result(res, mesh, sigma, arr.shape, max_stars, np.zeros(2)), mesh, level

@@ -46,8 +46,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from shipstar.errors import ShipstarError
 from shipstar.extract._background import median
-from shipstar.extract._core import _prepare, _result
+from shipstar.extract._core import TRUSTED_SMEAR_SIGMA_PX, _prepare, _result
 from shipstar.extract._kernels import suppress
 from shipstar.extract._matched import LineFilter
 from shipstar.extract._point import SEGMENT_SIGMA, too_sharp
@@ -213,7 +214,8 @@ def _crowded(win, dx, dy, smear, sigma: float, box_noise_factor: float) -> np.nd
 
 
 def extract_windows(image, xy_pred_px, *, mesh, saturation_adu: float, smear_px, psf_sigma_px: float,
-                    gain_e_per_adu: float, threshold_sigma: float = 5.0, search_px: float = 3.0) -> WindowResult:
+                    gain_e_per_adu: float, threshold_sigma: float = 5.0, search_px: float = 3.0,
+                    smear_sigma_px: float | None = None) -> WindowResult:
     """The stars of a frame measured in windows around their predicted places.
 
     Parameters
@@ -239,19 +241,25 @@ def extract_windows(image, xy_pred_px, *, mesh, saturation_adu: float, smear_px,
         Detection threshold, as for :func:`extract_stars`.
     search_px : float
         Largest error of the predictions, px (the peak is looked for this far).
+    smear_sigma_px : float, optional
+        The error of ``smear_px`` (1 sigma, px): at most ``TRUSTED_SMEAR_SIGMA_PX`` (0.05 px)
+        the smear is used as it is, not measured again (as for :func:`extract_stars`).
 
     Returns
     -------
     WindowResult
     """
+    if smear_sigma_px is not None and not (math.isfinite(smear_sigma_px) and smear_sigma_px >= 0.0):
+        raise ShipstarError(f"smear_sigma_px must be finite and >= 0, got {smear_sigma_px}")
+    trusted = smear_sigma_px is not None and smear_sigma_px <= TRUSTED_SMEAR_SIGMA_PX
     return _windows(image, xy_pred_px, mesh, saturation_adu, smear_px, psf_sigma_px, gain_e_per_adu,
-                    threshold_sigma, search_px, moved=False)
+                    threshold_sigma, search_px, moved=False, trusted=trusted)
 
 
 def _windows(image, xy_pred_px, mesh, saturation_adu, smear_px, psf_sigma_px, gain_e_per_adu, threshold_sigma,
-             search_px, *, moved: bool) -> WindowResult:
+             search_px, *, moved: bool, trusted: bool = False) -> WindowResult:
     """:func:`extract_windows`; ``moved``: the predictions were moved by their common error
-    already (it is not measured again)."""
+    already (it is not measured again); ``trusted``: the smear is used as given."""
     arr, _ = _prepare(image)
     if arr.shape != tuple(mesh.shape_hw):
         return WindowResult(None, f"frame is {arr.shape[1]}x{arr.shape[0]}, the full frame's mesh "
@@ -311,7 +319,7 @@ def _windows(image, xy_pred_px, mesh, saturation_adu, smear_px, psf_sigma_px, ga
     if abs(centre[0]) + reach[0] + search > hx or abs(centre[1]) + reach[1] + search > hy:
         # beyond the windows: the frame again with the predictions moved (rare)
         return _windows(image, xy + np.array(centre, dtype=float), mesh, saturation_adu, smear, psf_sigma_px,
-                        gain_e_per_adu, threshold_sigma, search_px, moved=True)
+                        gain_e_per_adu, threshold_sigma, search_px, moved=True, trusted=trusted)
     dx, dy, snr = _peaks(win, taps, search, mesh.box_noise_factor, local, centre)
     found = np.flatnonzero(snr >= PEAK_SNR_FRACTION * threshold_sigma)
     crowded = _crowded(win.take(found), dx[found], dy[found], smear, sigma, mesh.box_noise_factor)
@@ -330,6 +338,6 @@ def _windows(image, xy_pred_px, mesh, saturation_adu, smear_px, psf_sigma_px, ga
                too_big=blend | crowded[kept])
     res = measure_streaks(arr, mesh, smear, threshold_sigma=float(threshold_sigma), segment_sigma=segment_sigma,
                           sigma=sigma, inv_gain=inv_gain, bad=bad, saturated=saturated, fit=True,
-                          refine_smear=length >= REFINE_MIN_PX, det=det)     # (no star: the empty arrays)
+                          refine_smear=length >= REFINE_MIN_PX and not trusted, det=det)   # (no star: empty arrays)
     ex = replace(_result(res, mesh, sigma, arr.shape, None, smear), background_adu=mesh.background_adu + shift)
     return WindowResult(ex, "", n_pred, shift)

@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import deque
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -62,6 +63,10 @@ _MAX_SMEAR_HINT_GAP_S = 0.5
 #: only from ``extract._smear.AUTO_SMEAR_MIN_PX``, 3 px: a 0.5 px margin, against the
 #: prediction's ~0.1 px error at 3 px).
 POINT_HINT_MAX_PX = 2.5
+#: The smear hint's error is measured on this many of the last frames: each frame's
+#: prediction against the smear of the motion fitted with that frame's own attitude
+#: (:meth:`SensorProcessor._smear_sigma_px`).
+HINT_CHECK_FRAMES = 5
 #: Windowed tracking (``PipelineOptions.windowed_full_frame_every``): the windows must
 #: find at least this fraction of the stars the last full frame identified, else the
 #: frame is extracted whole (cloud coming, a prediction gone wrong) ...
@@ -399,6 +404,10 @@ class SensorProcessor:
         correct = options.streak_correction and config.installation is not None
         self._motion = MotionWindow(1) if correct else None
         self._motion_fit = None           # its last fit (the next frame's smear hint)
+        # the smear hint's own check: the last prediction (t_s, exposure_s, extrapolated by s,
+        # smear (2,)) and the errors (px, extrapolated by s) of the last HINT_CHECK_FRAMES ones
+        self._smear_predicted = None
+        self._hint_errors = deque(maxlen=HINT_CHECK_FRAMES)
         cam = config.camera                # the image centre's direction (sensor axes): the hint's star
         self._centre_u = cam.unproject(np.array([[0.5 * (cam.width_px - 1), 0.5 * (cam.height_px - 1)]]))[0]
         # the sky's conditions: Moon/Sun masks, trails, cloud, seeing (pipeline._conditions)
@@ -453,7 +462,8 @@ class SensorProcessor:
         if ex is None:
             ex, mesh, level = frame_extraction(image, threshold_sigma=self.options.threshold_sigma,
                                                psf_sigma_px=cam.psf_sigma_px, gain_e_per_adu=cam.gain_e_per_adu,
-                                               smear_px=self._smear_hint_px(frame, t_s))
+                                               smear_px=self._smear_hint_px(frame, t_s),
+                                               smear_sigma_px=self._smear_sigma_px(t_s))
             self._full_frame, self._whole_next = (mesh, level), False
         keep = self.conditions.keep(image, ex, prior)
         order = rank_by_flux(ex.flux_adu)
@@ -502,17 +512,53 @@ class SensorProcessor:
 
     def _predicted_smear_px(self, frame, t_s: float):
         """The smear (dx, dy) px at the image centre that the motion fitted to this sensor's
-        solved frames predicts for this frame, of any length (None: no recent fit)."""
+        solved frames predicts for this frame, of any length (None: no recent fit); kept
+        for the hint's check (:meth:`_check_hint`)."""
         fit = self._motion_fit
         exposure_s = frame.exposure_s
         if fit is None or not (math.isfinite(t_s) and math.isfinite(exposure_s) and exposure_s > 0.0) \
                 or not 0.0 <= t_s - fit.t_last_s <= _MAX_SMEAR_HINT_GAP_S:
             return None
+        smear = self._smear_of(fit, t_s, exposure_s)
+        if smear is not None:
+            self._smear_predicted = (t_s, exposure_s, t_s - fit.t_last_s, smear)
+        return smear
+
+    def _smear_of(self, fit, t_s: float, exposure_s: float):
+        """The smear (dx, dy) px at the image centre of the motion ``fit`` over an exposure
+        ``exposure_s`` centred on ``t_s`` (None if not finite)."""
         u0 = self._centre_u
         d = np.cross(fit.omega_at(t_s), u0) * (0.5 * exposure_s)     # u(t) = u0 - (omega x u0) t
         ends = self.config.camera.project(np.array([u0 + d, u0 - d]))
         smear = ends[1] - ends[0]
         return smear if np.all(np.isfinite(smear)) else None
+
+    def _check_hint(self, fit, t_s: float) -> None:
+        """Record the error of this frame's smear prediction: against the smear of ``fit``,
+        the motion fitted with this frame's attitude too (its rate at ``t_s`` is then
+        interpolated, not extrapolated: a few 0.001 px at sea, where the prediction's
+        extrapolation over a frame period is ~0.01 px off)."""
+        predicted, self._smear_predicted = self._smear_predicted, None
+        if predicted is None or predicted[0] != t_s:
+            return
+        _, exposure_s, gap_s, smear = predicted
+        now = self._smear_of(fit, t_s, exposure_s)
+        if now is not None:
+            self._hint_errors.append((float(np.hypot(*(smear - now))), gap_s))
+
+    def _smear_sigma_px(self, t_s: float):
+        """The error (px) of this frame's smear prediction (:meth:`_predicted_smear_px`),
+        or None when not known: the largest of the last :data:`HINT_CHECK_FRAMES` frames'
+        (:meth:`_check_hint`), when there are that many and this prediction extrapolates
+        the motion no further than theirs did.  The extraction takes a hint known to
+        ``extract._core.TRUSTED_SMEAR_SIGMA_PX`` (0.05 px) as it is, rather than
+        measuring the smear again from the frame's brightest streaks (~0.1 px off)."""
+        predicted = self._smear_predicted
+        errors = self._hint_errors
+        if predicted is None or predicted[0] != t_s or len(errors) < HINT_CHECK_FRAMES \
+                or predicted[2] > max(gap for _, gap in errors) + 1e-6:
+            return None
+        return max(err for err, _ in errors)
 
     def _windowed(self, image, frame, index: int, t_s: float, prior, extrapolated: bool):
         """The frame's stars measured in windows around the catalog stars the prior
@@ -538,7 +584,8 @@ class SensorProcessor:
         mesh, level = self._full_frame
         result = extract_windows(image, self._predicted_xy_px(prior), mesh=mesh, saturation_adu=level,
                                  smear_px=smear, psf_sigma_px=cam.psf_sigma_px, gain_e_per_adu=cam.gain_e_per_adu,
-                                 threshold_sigma=self.options.threshold_sigma, search_px=WINDOW_SEARCH_PX)
+                                 threshold_sigma=self.options.threshold_sigma, search_px=WINDOW_SEARCH_PX,
+                                 smear_sigma_px=self._smear_sigma_px(t_s))
         if not result.ok or len(result.extraction) < max(WINDOW_MIN_STARS,
                                                          WINDOW_MIN_FOUND_FRACTION * self._full_n_id):
             return None
@@ -658,6 +705,7 @@ class SensorProcessor:
         fit = self._motion_fit = self._motion.fit(t_s)
         if fit is None:                          # the sensor's first frames: motion not known yet
             return replace(fr, streak_correction_arcsec=math.nan)
+        self._check_hint(fit, t_s)
         cam = self.config.camera
         model = StreakModel(cam.psf_sigma_px, cam.pixel_mm / cam.f_mm) if extracted else None
         return streak_corrected(fr, fit.omega_at(t_s), fit.alpha_at(t_s), self.config.installation, self.options,
