@@ -46,7 +46,8 @@ def _prepare(image):
         hint = " (colour? convert to luminance first, e.g. with read_image)" if arr.ndim == 3 else ""
         raise ShipstarError(f"image must be 2-D (height, width), got shape {arr.shape}{hint}")
     if min(arr.shape) < MIN_SIZE_PX:
-        raise ShipstarError(f"image is {arr.shape[1]}x{arr.shape[0]} px; at least {MIN_SIZE_PX}x{MIN_SIZE_PX} is needed")
+        raise ShipstarError(f"image is {arr.shape[1]}x{arr.shape[0]} px; "
+                            f"at least {MIN_SIZE_PX}x{MIN_SIZE_PX} is needed")
     if not arr.dtype.isnative:
         arr = arr.astype(arr.dtype.newbyteorder("="))
     arr = np.ascontiguousarray(arr)
