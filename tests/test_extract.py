@@ -708,6 +708,27 @@ def test_a_trusted_smear_hint_is_used_as_it_is_and_measures_as_well(monkeypatch)
         assert "\n" not in str(info.value)
 
 
+@pytest.mark.parametrize("seed", [70, 71])
+def test_a_short_trusted_smear_is_measured_as_streaks_closer_to_the_bound_than_as_points(seed):
+    """A smear of 2.8 px known to 0.05 px (``smear_sigma_px``): the stars are found as points
+    (as complete, no false detection more) and fitted with the PSF moved along the smear,
+    whose Cramer-Rao bound they reach; the point path's Gaussian (the frame given as
+    unsmeared) is 4-15 % over it along the smear (model error), and no nearer across."""
+    image, xy, signal, smear = smeared_grid_frame(0.45, seed=seed)
+    assert 2.5 < np.median(np.hypot(*smear.T)) < 3.0
+    kwargs = dict(psf_sigma_px=A1.psf_sigma_px, gain_e_per_adu=A1.gain_e_per_adu)
+    streaks = extract_stars(image, smear_px=np.median(smear, axis=0), smear_sigma_px=0.01, **kwargs)
+    points = extract_stars(image, smear_px=(0.0, 0.0), **kwargs)
+    np.testing.assert_array_equal(streaks.smear_px, np.median(smear, axis=0))
+    st, sp = (smeared_statistics(r, xy, signal, smear) for r in (streaks, points))
+    assert st["complete"] >= sp["complete"] and st["false"] <= sp["false"]
+    assert st["ratio_along"] <= 0.95 * sp["ratio_along"] and st["ratio_along"] <= 1.1, (st, sp)
+    assert st["ratio_across"] <= sp["ratio_across"] + 0.01 and st["ratio_across"] <= 1.1, (st, sp)
+    for name in ("along", "across"):
+        assert abs(st[f"bias_{name}"]) < 4 * st[f"se_{name}"] + 0.005
+        assert st[f"predicted_{name}"] == pytest.approx(1.0, abs=0.15)          # xy_cov_px2 follows the bound
+
+
 def test_smeared_frames_without_stars_hot_pixels_or_cosmic_rays_give_nothing():
     rng = np.random.default_rng(61)
     fo = FalseObjects(cosmic_ray_count=40, cosmic_ray_e=8000.0)
@@ -735,6 +756,40 @@ def test_hot_pixels_and_cosmic_rays_do_not_disturb_smeared_stars():
     isolated = close.min(axis=1) > 30.0
     assert np.all(found[isolated] >= 0)
     assert len(result) - np.sum(found >= 0) <= 1
+
+
+def test_short_trusted_smears_with_hot_pixels_cosmic_rays_saturation_edges_and_a_trail():
+    """The short-smear path (points found, streaks fitted): hot pixels and cosmic rays are
+    not stars and do not move them, a saturated star is flagged and fitted on its wings, a
+    star on the edge is flagged, a satellite trail is one elongated object."""
+    from shipstar.extract import FLAG_EDGE, FLAG_SATURATED
+
+    rng = np.random.default_rng(64)
+    smear = np.array([2.2, -1.1])
+    xy = np.vstack([rng.uniform(40, 984, size=(40, 2)), [[0.8, 500.0]]])        # the last: its light off the edge
+    signal = np.concatenate([star_signal_e(A1, rng.uniform(4.0, 7.0, 40)), [3e5]])
+    signal[0] = 3e7                                                                    # saturated
+    fo = FalseObjects(cosmic_ray_count=30, cosmic_ray_e=8000.0, trail_xy_px=[[[100.0, 900.0], [400.0, 760.0]]],
+                      trail_signal_e=[2e6])
+    image = render_frame(A1, xy, signal, rng, smear_px=smear, hot_pixel_fraction=2e-4, hot_pixel_e_per_s=3e4,
+                         false_objects=fo)
+    result = extract_stars(image, psf_sigma_px=A1.psf_sigma_px, gain_e_per_adu=A1.gain_e_per_adu, smear_px=smear,
+                           smear_sigma_px=0.0)
+    np.testing.assert_array_equal(result.smear_px, smear)
+    found = match_one_to_one(result.xy_px, xy, np.full(len(xy), 0.5))
+    close = np.linalg.norm(xy[:, None] - xy[None], axis=2) + 1e9 * np.eye(len(xy))
+    on_trail = np.abs(xy[:, 1] - (900.0 - 140.0 * (xy[:, 0] - 100.0) / 300.0)) < 15.0
+    isolated = (close.min(axis=1) > 30.0) & ~on_trail
+    assert np.all(found[isolated] >= 0)
+    assert result.flags[found[0]] & FLAG_SATURATED and np.linalg.norm(result.xy_px[found[0]] - xy[0]) < 0.1
+    assert result.flags[found[-1]] & FLAG_EDGE
+    clean = isolated & (np.arange(len(xy)) > 0) & (np.arange(len(xy)) < len(xy) - 1)
+    assert np.all(result.flags[found[clean]] == 0)
+    others = np.setdiff1d(np.arange(len(result)), found)
+    trail = others[(result.flags[others] & FLAG_ELONGATED) != 0]
+    assert len(trail) >= 1 and len(others) - len(trail) <= 1                      # at most one noise peak
+    x, y = result.xy_px[trail].T
+    assert np.all((x >= 90) & (x <= 410) & (np.abs(y - (900.0 - 140.0 * (x - 100.0) / 300.0)) < 8.0))
 
 
 def test_smeared_frame_flags_saturated_edge_and_trails():

@@ -16,7 +16,7 @@ from shipstar.extract._background import estimate_mesh
 from shipstar.extract._detect import at_or_above
 from shipstar.extract._point import component_stats, detect_objects, measure_points
 from shipstar.extract._result import Extraction
-from shipstar.extract._smear import STREAK_MIN_PX, frame_smear
+from shipstar.extract._smear import AUTO_SMEAR_MIN_PX, STREAK_MIN_PX, frame_smear
 
 __all__ = ["extract_stars", "frame_extraction", "STREAK_MIN_PX"]
 
@@ -208,7 +208,8 @@ def frame_extraction(image, *, threshold_sigma=5.0, max_stars=None, refine="gaus
     mesh = estimate_mesh(arr, quantum_adu=quantum)
     inv_gain = None if gain_e_per_adu is None else 1.0 / float(gain_e_per_adu)
     sigma_given = None if psf_sigma_px is None else float(psf_sigma_px)
-    if hint is not None and math.hypot(*hint) >= STREAK_MIN_PX and sigma_given and inv_gain:
+    if hint is not None and math.hypot(*hint) >= (AUTO_SMEAR_MIN_PX if trusted else STREAK_MIN_PX) and sigma_given \
+            and inv_gain:
         # everything known: straight to the streaks (no segmentation of the frame needed)
         from shipstar.extract._smeared import extract_smeared   # (not loaded for point sources)
 
@@ -217,6 +218,14 @@ def frame_extraction(image, *, threshold_sigma=5.0, max_stars=None, refine="gaus
         return _result(res, mesh, sigma, arr.shape, max_stars, hint), mesh, level
     peaks, labels_of_peaks, idx, labels = detect_objects(arr, mesh, float(threshold_sigma))
     stats = component_stats(arr, mesh, idx, labels, labels_of_peaks, saturation)
+    if hint is not None and trusted and STREAK_MIN_PX <= math.hypot(*hint) < AUTO_SMEAR_MIN_PX and sigma_given \
+            and inv_gain:
+        # a short smear known to 0.05 px: the stars found as points, measured as streaks
+        from shipstar.extract._smeared import measure_short_streaks
+
+        res = measure_short_streaks(arr, mesh, peaks, idx, stats, hint, sigma_given, inv_gain, saturation,
+                                    float(threshold_sigma), refine)
+        return _result(res, mesh, sigma_given, arr.shape, max_stars, hint), mesh, level
     sat_mask = at_or_above(arr, saturation) if (hint is None and n_sat) else None
     smear, sigma_s, gain_s = frame_smear(arr, mesh, stats, hint, sigma_given, inv_gain, sat_mask)
     if smear is not None:

@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from shipstar.extract._detect import at_or_above, candidate_pixels, local_maxima
+from shipstar.extract._detect import at_or_above, box_sums, candidate_pixels, local_maxima
 from shipstar.extract._fit import _spd_inverse
 from shipstar.extract._matched import LineFilter, detect_streaks
 from shipstar.extract._point import SEGMENT_SIGMA, SHARPEST_PSF_SIGMA_PX, bright_objects, too_sharp
@@ -31,7 +31,7 @@ from shipstar.extract._streak import (
     streak_normal_equations,
 )
 
-__all__ = ["sharp_pixels", "measure_streaks", "extract_smeared"]
+__all__ = ["sharp_pixels", "measure_streaks", "extract_smeared", "measure_short_streaks"]
 
 #: A hot pixel's or cosmic ray's whole connected component is masked when it has at most this many pixels.
 _SHARP_COMPONENT_PX = 9
@@ -108,7 +108,8 @@ def measure_streaks(image, mesh, smear, *, threshold_sigma, segment_sigma, sigma
     sigma, inv_gain : float
         PSF sigma and inverse gain (0: uniform weights).
     bad, saturated : (H, W) bool
-        Pixels left out of the fits (masked or saturated), and the saturated ones.
+        Pixels left out of the fits (masked or saturated), and the saturated ones (None:
+        none is).
     patch : (flat indices (K,), values (K,)), optional
         Pixels replaced by these values (the background) for the detection: hot pixels
         and cosmic rays (also in ``bad``).
@@ -159,9 +160,11 @@ def measure_streaks(image, mesh, smear, *, threshold_sigma, segment_sigma, sigma
     cov = _spd_inverse(a) * mesh.box_noise_factor ** 2
     excess = (model - p[:, BG, None]).reshape(win.values.shape)
     foot = excess >= _FOOTPRINT_FRACTION * excess.max(axis=(1, 2), keepdims=True)
-    sat, inside = _window_mask(saturated, win, col, row)
+    sat, inside = _window_mask(saturated, win, col, row, image.shape)
     flags = _flags(foot, sat, inside, ok | (not fit), det)
-    xy = np.where(ok[:, None], p[:, :2], _centre_of_light(win, foot))
+    xy = p[:, :2].copy()
+    if len(failed):                        # (a failed fit's: the centre of light of its footprint)
+        xy[failed] = _centre_of_light(win.take(failed), foot[failed])
     flux = p[:, FLUX]
     peak = np.where(foot & (win.valid | sat), win.values, -np.inf).max(axis=(1, 2))   # masked pixels not
     xy_cov = np.where(ok[:, None, None], cov[:, :2, :2], np.nan)
@@ -179,7 +182,7 @@ def _refined_smear(image, mesh, det, smear, sigma, inv_gain, bad, saturated):
     estimate (at least 3 fits whose smear vectors agree); else the prediction."""
     order = np.argsort(-det["snr"], kind="stable")
     col, row = det["col"][order], det["row"][order]
-    clean = ~saturated[row, col]
+    clean = np.ones(len(col), dtype=bool) if saturated is None else ~saturated[row, col]
     refined, _, _, (n_ok, spread) = calibrate(image, mesh, bad, col[clean], row[clean], smear, sigma, inv_gain,
                                               fit_smear=True)
     length = float(np.hypot(*refined))
@@ -218,14 +221,30 @@ def _centre_of_light(win, foot):
     return np.stack([win.x0 + cx, win.y0 + cy], axis=1)
 
 
-def _window_mask(mask, win, col, row):
-    """``mask`` (H, W) bool at the window pixels (N, Wy, Wx) (False off the image), and which are on it."""
-    height, width = mask.shape
+def _window_mask(mask, win, col, row, shape_hw):
+    """``mask`` (H, W) bool (None: all False) at the window pixels (N, Wy, Wx) (False off the
+    image), and which are on it."""
+    height, width = shape_hw
     wy, wx = win.shape
     rows = row[:, None] + np.arange(wy) - (wy - 1) // 2
     cols = col[:, None] + np.arange(wx) - (wx - 1) // 2
     inside = ((rows >= 0) & (rows < height))[:, :, None] & ((cols >= 0) & (cols < width))[:, None, :]
+    if mask is None:
+        return np.zeros_like(inside), inside
     return inside & mask[np.clip(rows, 0, height - 1)[:, :, None], np.clip(cols, 0, width - 1)[:, None, :]], inside
+
+
+def _at(mask, flat_idx):
+    """``mask`` (H, W) bool (None: all False) at the flat indices ``flat_idx``."""
+    return np.zeros(len(flat_idx), dtype=bool) if mask is None else mask.reshape(-1)[flat_idx]
+
+
+def _bad(shape_hw, saturated, masked):
+    """(H, W) bool: the saturated pixels (None: none) and the flat indices ``masked`` (a fresh
+    array: the zeros' pages are mapped as they are written)."""
+    bad = np.zeros(shape_hw, dtype=bool) if saturated is None else saturated.copy()
+    bad.reshape(-1)[masked] = True
+    return bad
 
 
 def _flags(foot, sat, inside, ok, det):
@@ -249,18 +268,16 @@ def extract_smeared(arr, mesh, stats, smear, sigma, inv_gain, saturation, thresh
     (:func:`shipstar.extract._point.component_stats` of the frame's objects; sigma 1 px
     when none can be fitted); ``stats`` is not used when both are given.
     """
-    saturated = at_or_above(arr, saturation) if math.isfinite(saturation) else np.zeros(arr.shape, dtype=bool)
+    saturated = at_or_above(arr, saturation) if math.isfinite(saturation) else None
     segment_sigma = min(SEGMENT_SIGMA, threshold_sigma)
 
     def sharp(psf_sigma, gain):
         def test(peaks):
-            row, col = np.divmod(peaks, arr.shape[1])
-            return too_sharp(arr, mesh, peaks, psf_sigma, gain or 0.0, saturated[row, col])
+            return too_sharp(arr, mesh, peaks, psf_sigma, gain or 0.0, _at(saturated, peaks))
         return sharp_pixels(arr, mesh, test, segment_sigma)
 
     if sigma is None or inv_gain is None:
-        bad = saturated.copy()
-        bad.reshape(-1)[sharp(SHARPEST_PSF_SIGMA_PX if sigma is None else sigma, inv_gain)] = True
+        bad = _bad(arr.shape, saturated, sharp(SHARPEST_PSF_SIGMA_PX if sigma is None else sigma, inv_gain))
         cog = stats["cog"][bright_objects(stats)]
         if len(cog) == 0:
             _, cog = binned_guess(arr)
@@ -270,10 +287,45 @@ def extract_smeared(arr, mesh, stats, smear, sigma, inv_gain, saturation, thresh
     sigma = 1.0 if sigma is None else sigma
     masked = sharp(sigma, inv_gain)
     row, col = np.divmod(masked, arr.shape[1])
-    bad = saturated.copy()
-    bad.reshape(-1)[masked] = True
+    bad = _bad(arr.shape, saturated, masked)
     result = measure_streaks(arr, mesh, smear, threshold_sigma=threshold_sigma, segment_sigma=segment_sigma,
                              sigma=sigma, inv_gain=inv_gain or 0.0, bad=bad, saturated=saturated,
                              patch=(masked, mesh.at(col, row)[0]), fit=refine == "gaussian",
                              refine_smear=refine_smear)
     return result, sigma
+
+
+def measure_short_streaks(arr, mesh, peaks, idx, stats, smear, sigma, inv_gain, saturation, threshold_sigma, refine):
+    """Centroids of a frame whose smear is short (``STREAK_MIN_PX`` to 3 px) and known: the
+    stars found as points (``peaks``: one per component of the candidate pixels ``idx``,
+    :func:`shipstar.extract._point.detect_objects`; ``stats``: their
+    :func:`~shipstar.extract._point.component_stats`), measured as streaks of ``smear``
+    (:func:`measure_streaks` with these detections; the smear as given).
+
+    A streak this short is as compact as a point -- the 3 x 3 box detects it as well as the
+    line filter -- but its light is not a point's: the streak model (the PSF moved along the
+    smear) measures it better than the Gaussian of the point path (docs/extraction.md,
+    *Short smears*).  Hot pixels and cosmic rays (:func:`sharp_pixels`, from the candidates
+    already found) are left out of the fits and are not stars; saturated pixels are left out
+    of the fits.  Returns the dict of :func:`measure_streaks`.
+    """
+    saturated = at_or_above(arr, saturation) if math.isfinite(saturation) else None
+    segment_sigma = min(SEGMENT_SIGMA, threshold_sigma)
+    width = arr.shape[1]
+
+    def test(candidates):
+        return too_sharp(arr, mesh, candidates, sigma, inv_gain, _at(saturated, candidates))
+
+    masked = sharp_pixels(arr, mesh, test, segment_sigma, idx=idx)      # (idx: a superset of its 3.5 sigma pixels)
+    bad = _bad(arr.shape, saturated, masked)
+    star = ~np.isin(peaks, masked, assume_unique=True)
+    peaks = peaks[star]
+    row, col = np.divmod(peaks, width)
+    box, count = box_sums(arr.reshape(-1), peaks, arr.shape)
+    bg, noise = mesh.at(col, row)
+    det = dict(col=col, row=row, snr=(box - count * bg) / (np.sqrt(count) * noise * mesh.box_noise_factor),
+               label=np.arange(len(peaks)), npix=stats["npix"][star],
+               too_big=(stats["flags"][star] & FLAG_ELONGATED) != 0)
+    return measure_streaks(arr, mesh, np.asarray(smear, dtype=float), threshold_sigma=threshold_sigma,
+                           segment_sigma=segment_sigma, sigma=sigma, inv_gain=inv_gain, bad=bad, saturated=saturated,
+                           fit=refine == "gaussian", refine_smear=False, det=det)

@@ -492,9 +492,10 @@ class SensorProcessor:
         at least :data:`SMEAR_HINT_MIN_PX` long, where the extraction would find the frame
         smeared anyway (it treats estimated smears of 3 px or more as streaks): the hint
         spares it the point-source pass and the smear's estimate, which are then thrown
-        away.  The extraction detects with the hint and measures the common smear again
-        from the streaks it finds (docs/extraction.md, *Smeared frames*), so a hint a few
-        per cent off costs nothing.  A predicted smear shorter than
+        away.  The extraction detects with the hint and, unless its stated error
+        (:meth:`_smear_sigma_px`) is within ``extract._core.TRUSTED_SMEAR_SIGMA_PX``, measures
+        the common smear again from the streaks it finds (docs/extraction.md, *Smeared
+        frames*), so a hint a few per cent off costs nothing.  A predicted smear shorter than
         :data:`POINT_HINT_MAX_PX` gives ``(0, 0)``: point sources, the smear's estimate
         skipped (it would have found the frame unsmeared: the same stars).
         """
