@@ -565,11 +565,14 @@ def test_smeared_stars_are_complete_unbiased_and_near_the_cramer_rao_bound(rate_
         assert st[f"faint_ratio_{name}"] <= 1.5          # SNR 10-30 alone: the long tail of faint streaks
         assert st[f"predicted_{name}"] == pytest.approx(1.0, abs=0.15)     # xy_cov_px2 follows the bound
     if rate_deg_s >= 1.0:
-        # the common smear: given, or estimated (its sign is arbitrary)
+        # the common smear the stars were measured with (its sign is arbitrary): estimated from
+        # the frame, or the given one measured again from the 12 brightest streaks found -- here
+        # the first 12 of the grid's equally bright stars, in one corner of a field whose smear
+        # varies by +-11 %: 4-8 % short (the per-star field corrects it from 6 px)
         true = np.median(smear, axis=0)
         est = result.smear_px * np.sign(result.smear_px @ true)
-        assert np.hypot(*est) == pytest.approx(np.hypot(*true), rel=0.03)
-        assert abs(math.atan2(est[1], est[0]) - math.atan2(true[1], true[0])) < math.radians(2.0)   # field rotation: +-6 deg
+        assert np.hypot(*est) == pytest.approx(np.hypot(*true), rel=0.1 if given else 0.03)
+        assert abs(math.atan2(est[1], est[0]) - math.atan2(true[1], true[0])) < math.radians(2.0)   # field: +-6 deg
     elif rate_deg_s == 0.0:
         assert np.all(result.smear_px == 0.0)
 
@@ -706,6 +709,18 @@ def test_a_trusted_smear_hint_is_used_as_it_is_and_measures_as_well(monkeypatch)
         with pytest.raises(ShipstarError, match="smear_sigma_px") as info:
             extract_stars(image, smear_sigma_px=bad, **kwargs)
         assert "\n" not in str(info.value)
+
+
+def test_the_result_reports_the_smear_the_stars_were_measured_with():
+    """A hint 8 % long, without a stated error: the smear measured again from the streaks
+    is reported (within 3 % of the truth), not the hint; a trusted hint is reported as given."""
+    image, xy, signal, smear = smeared_grid_frame(2.0, seed=69)
+    true = np.median(smear, axis=0)
+    kwargs = dict(psf_sigma_px=A1.psf_sigma_px, gain_e_per_adu=A1.gain_e_per_adu, smear_px=1.08 * true)
+    measured = extract_stars(image, **kwargs).smear_px
+    measured = measured * np.sign(measured @ true)
+    assert np.hypot(*(measured - true)) <= 0.03 * np.hypot(*true), (measured, true)
+    np.testing.assert_array_equal(extract_stars(image, smear_sigma_px=0.0, **kwargs).smear_px, 1.08 * true)
 
 
 @pytest.mark.parametrize("seed", [70, 71])

@@ -215,7 +215,7 @@ def frame_extraction(image, *, threshold_sigma=5.0, max_stars=None, refine="gaus
 
         res, sigma = extract_smeared(arr, mesh, None, hint, sigma_given, inv_gain, saturation,
                                      float(threshold_sigma), refine, refine_smear=not trusted)
-        return _result(res, mesh, sigma, arr.shape, max_stars, hint), mesh, level
+        return _result(res, mesh, sigma, arr.shape, max_stars, res["smear"]), mesh, level
     peaks, labels_of_peaks, idx, labels = detect_objects(arr, mesh, float(threshold_sigma))
     stats = component_stats(arr, mesh, idx, labels, labels_of_peaks, saturation)
     if hint is not None and trusted and STREAK_MIN_PX <= math.hypot(*hint) < AUTO_SMEAR_MIN_PX and sigma_given \
@@ -233,7 +233,7 @@ def frame_extraction(image, *, threshold_sigma=5.0, max_stars=None, refine="gaus
 
         res, sigma = extract_smeared(arr, mesh, stats, smear, sigma_s, gain_s, saturation, float(threshold_sigma),
                                      refine, refine_smear=hint is not None and not trusted)
-        return _result(res, mesh, sigma, arr.shape, max_stars, smear), mesh, level
+        return _result(res, mesh, sigma, arr.shape, max_stars, res["smear"]), mesh, level
     res, sigma = measure_points(arr, mesh, peaks, stats, refine, psf_sigma_px, inv_gain)
     return _result(res, mesh, sigma, arr.shape, max_stars, np.zeros(2)), mesh, level
 

@@ -126,15 +126,18 @@ def measure_streaks(image, mesh, smear, *, threshold_sigma, segment_sigma, sigma
 
     Returns
     -------
-    dict of per-star arrays: xy (M, 2), flux, peak, npix, flags, snr, xy_cov (M, 2, 2). Peaks
-    whose fit converged with a flux SNR below 0.8 ``threshold_sigma`` are dropped (noise).
+    dict of per-star arrays: xy (M, 2), flux, peak, npix, flags, snr, xy_cov (M, 2, 2); and
+    ``smear`` (2,), the common smear the fits used (measured again with ``refine_smear``, else
+    as given). Peaks whose fit converged with a flux SNR below 0.8 ``threshold_sigma`` are
+    dropped (noise).
     """
     if det is None:
         lf = LineFilter(smear, across_px=max(1, int(round(1.2 * sigma))))
         det = detect_streaks(image, mesh, lf, threshold_sigma, segment_sigma, sigma, patch=patch)
     if len(det["col"]) == 0:
         return dict(xy=np.zeros((0, 2)), flux=np.zeros(0), peak=np.zeros(0), npix=np.zeros(0, dtype=np.int64),
-                    flags=np.zeros(0, dtype=np.int64), snr=np.zeros(0), xy_cov=np.zeros((0, 2, 2)))
+                    flags=np.zeros(0, dtype=np.int64), snr=np.zeros(0), xy_cov=np.zeros((0, 2, 2)),
+                    smear=np.array(smear, dtype=float))
     col, row = det["col"], det["row"]
     if refine_smear and fit:
         smear = _refined_smear(image, mesh, det, smear, sigma, inv_gain, bad, saturated)
@@ -172,7 +175,8 @@ def measure_streaks(image, mesh, smear, *, threshold_sigma, segment_sigma, sigma
     keep = ~ok | (snr >= _FIT_SNR_FRACTION * threshold_sigma) if fit else np.ones(len(snr), dtype=bool)
     xy, flux, peak, flags, snr, xy_cov = xy[keep], flux[keep], peak[keep], flags[keep], snr[keep], xy_cov[keep]
     npix = foot.sum(axis=(1, 2)) if det["npix"] is None else det["npix"]
-    return dict(xy=xy, flux=flux, peak=peak, npix=npix[keep], flags=flags, snr=snr, xy_cov=xy_cov)
+    return dict(xy=xy, flux=flux, peak=peak, npix=npix[keep], flags=flags, snr=snr, xy_cov=xy_cov,
+                smear=np.array(smear, dtype=float))
 
 
 def _refined_smear(image, mesh, det, smear, sigma, inv_gain, bad, saturated):

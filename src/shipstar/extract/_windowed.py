@@ -339,5 +339,5 @@ def _windows(image, xy_pred_px, mesh, saturation_adu, smear_px, psf_sigma_px, ga
     res = measure_streaks(arr, mesh, smear, threshold_sigma=float(threshold_sigma), segment_sigma=segment_sigma,
                           sigma=sigma, inv_gain=inv_gain, bad=bad, saturated=saturated, fit=True,
                           refine_smear=length >= REFINE_MIN_PX and not trusted, det=det)   # (no star: empty arrays)
-    ex = replace(_result(res, mesh, sigma, arr.shape, None, smear), background_adu=mesh.background_adu + shift)
+    ex = replace(_result(res, mesh, sigma, arr.shape, None, res["smear"]), background_adu=mesh.background_adu + shift)
     return WindowResult(ex, "", n_pred, shift)
