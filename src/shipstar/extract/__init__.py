@@ -18,7 +18,9 @@ over up to ~40 px) take another path when ``smear_px=(dx, dy)`` is given or a sm
 3 px or more is found in the frame: a line-shaped matched filter finds the streaks, a
 smear field (field rotation) is fitted to the bright ones, and each star is fitted with
 the pixel-integrated Gaussian moved along its smear; the centroid is the position at
-mid-exposure.
+mid-exposure. A given smear is measured again from the brightest streaks unless its
+error, ``smear_sigma_px``, is at most 0.05 px (a sensor's fitted motion knows it that
+well); such a smear of 1.5-3 px is measured as streaks on stars found as points.
 
 ``read_image(path)`` reads FITS, PNG, TIFF, JPEG and ``.npy`` files. See
 ``docs/extraction.md`` for the method, the flags and the measured accuracy and speed.
