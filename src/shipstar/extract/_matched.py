@@ -238,11 +238,16 @@ def detect_streaks(image, mesh: Mesh, lf: LineFilter, threshold_sigma: float, se
     labels, n_labels = components(idx, s_image.shape)
     label = labels[np.searchsorted(idx, peaks)] if len(peaks) else np.zeros(0, dtype=np.int64)
     npix = np.bincount(labels, minlength=n_labels)
-    extent = _component_extent(idx, labels, n_labels, s_image.shape[1], lf)[label]
+    # the extents of the components with a peak only (~40 of ~2,500: most are noise pixels);
+    # first: each one's strongest peak (peaks are strongest first)
+    with_peak, first = np.unique(label, return_index=True)
+    compact = np.full(n_labels, -1, dtype=np.int64)
+    compact[with_peak] = np.arange(len(with_peak))
+    sel = compact[labels] >= 0
+    extent = _component_extent(idx[sel], compact[labels[sel]], len(with_peak), s_image.shape[1], lf)[compact[label]]
     # a component longer or wider than one streak is a trail or an edge: its strongest peak only
     single = np.array([lf.length_px + 4.0 * psf_sigma_px + 2.0, 2.0 * psf_sigma_px + 2.0]) / math.sqrt(3.0)
     too_big = np.any(extent > EXTENT_FACTOR * single, axis=1)
-    _, first = np.unique(label, return_index=True)                 # peaks are strongest first
     keep = ~too_big
     keep[first] = True
     return dict(col=col[keep], row=row[keep], snr=snr[keep], label=label[keep], npix=npix[label][keep],
