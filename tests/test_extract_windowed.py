@@ -95,6 +95,30 @@ def test_background_moved_since_the_full_frame_refuses_the_windows():
     assert not none.ok and none.reason == "no predicted star in the frame"
 
 
+def test_windows_with_a_trusted_smear_use_it_as_it_is_and_refuse_a_bad_error(monkeypatch):
+    """``smear_sigma_px`` as for ``extract_stars``: within 0.05 px the smear is not measured
+    again from the windows' streaks, and the stars are found as well; a bad value is a
+    one-line error."""
+    from shipstar.errors import ShipstarError
+    from shipstar.extract import _smeared
+
+    xy, img, mesh, kw = _tracked_scene((10.0, 4.0), 5)
+    calls = []
+    refined = _smeared._refined_smear
+    monkeypatch.setattr(_smeared, "_refined_smear", lambda *a, **k: calls.append(1) or refined(*a, **k))
+    measured = extract_windows(img, xy, **kw)
+    assert measured.ok and len(calls) == 1
+    trusted = extract_windows(img, xy, smear_sigma_px=0.01, **kw)
+    assert trusted.ok and len(calls) == 1
+    np.testing.assert_array_equal(trusted.extraction.smear_px, kw["smear_px"])
+    j, near = _match(trusted.extraction.xy_px, xy)
+    assert near.all() and len(set(j)) == len(trusted.extraction) >= len(measured.extraction) - 1
+    for bad in (-1.0, np.nan):
+        with pytest.raises(ShipstarError, match="smear_sigma_px") as info:
+            extract_windows(img, xy, smear_sigma_px=bad, **kw)
+        assert "\n" not in str(info.value)
+
+
 def test_hot_pixels_and_cosmic_rays_in_a_window_are_not_stars():
     """Single hot pixels (far above the threshold) at predicted places with no star, and
     one beside a star: none found as a star, the star's centroid unmoved."""

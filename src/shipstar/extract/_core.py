@@ -106,11 +106,20 @@ def _check_args(threshold_sigma, max_stars, refine, psf_sigma_px, gain_e_per_adu
         raise ShipstarError(f"gain_e_per_adu must be finite and > 0, got {gain_e_per_adu}")
 
 
+def trusted_smear(smear_sigma_px) -> bool:
+    """Whether a smear hint with the stated error ``smear_sigma_px`` (px, or None: unknown) is
+    used as it is (at most :data:`TRUSTED_SMEAR_SIGMA_PX`); a bad value is a ShipstarError."""
+    if smear_sigma_px is None:
+        return False
+    if not (math.isfinite(smear_sigma_px) and smear_sigma_px >= 0.0):
+        raise ShipstarError(f"smear_sigma_px must be finite and >= 0, got {smear_sigma_px}")
+    return smear_sigma_px <= TRUSTED_SMEAR_SIGMA_PX
+
+
 def _check_smear(smear_px, smear_sigma_px=None):
     """The caller's smear hint as a (2,) array, or None; and whether it is trusted as it is
-    (its stated error ``smear_sigma_px`` at most :data:`TRUSTED_SMEAR_SIGMA_PX`)."""
-    if smear_sigma_px is not None and not (math.isfinite(smear_sigma_px) and smear_sigma_px >= 0.0):
-        raise ShipstarError(f"smear_sigma_px must be finite and >= 0, got {smear_sigma_px}")
+    (:func:`trusted_smear`)."""
+    trusted = trusted_smear(smear_sigma_px)
     if smear_px is None:
         return None, False
     try:
@@ -121,7 +130,7 @@ def _check_smear(smear_px, smear_sigma_px=None):
         raise ShipstarError(f"smear_px must be two finite numbers (dx, dy) in px, got {smear_px!r}")
     if math.hypot(*smear) > MAX_SMEAR_PX:
         raise ShipstarError(f"smear_px is {math.hypot(*smear):.1f} px long; at most {MAX_SMEAR_PX:g} px is supported")
-    return smear, smear_sigma_px is not None and smear_sigma_px <= TRUSTED_SMEAR_SIGMA_PX
+    return smear, trusted
 
 
 def extract_stars(image, *, threshold_sigma=5.0, max_stars=None, refine="gaussian",
@@ -225,7 +234,7 @@ def frame_extraction(image, *, threshold_sigma=5.0, max_stars=None, refine="gaus
 
         res = measure_short_streaks(arr, mesh, peaks, idx, stats, hint, sigma_given, inv_gain, saturation,
                                     float(threshold_sigma), refine)
-        return _result(res, mesh, sigma_given, arr.shape, max_stars, hint), mesh, level
+        return _result(res, mesh, sigma_given, arr.shape, max_stars, res["smear"]), mesh, level
     sat_mask = at_or_above(arr, saturation) if (hint is None and n_sat) else None
     smear, sigma_s, gain_s = frame_smear(arr, mesh, stats, hint, sigma_given, inv_gain, sat_mask)
     if smear is not None:

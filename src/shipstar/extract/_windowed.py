@@ -46,9 +46,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from shipstar.errors import ShipstarError
 from shipstar.extract._background import median
-from shipstar.extract._core import TRUSTED_SMEAR_SIGMA_PX, _prepare, _result
+from shipstar.extract._core import _prepare, _result, trusted_smear
 from shipstar.extract._kernels import suppress
 from shipstar.extract._matched import LineFilter
 from shipstar.extract._point import SEGMENT_SIGMA, too_sharp
@@ -249,9 +248,7 @@ def extract_windows(image, xy_pred_px, *, mesh, saturation_adu: float, smear_px,
     -------
     WindowResult
     """
-    if smear_sigma_px is not None and not (math.isfinite(smear_sigma_px) and smear_sigma_px >= 0.0):
-        raise ShipstarError(f"smear_sigma_px must be finite and >= 0, got {smear_sigma_px}")
-    trusted = smear_sigma_px is not None and smear_sigma_px <= TRUSTED_SMEAR_SIGMA_PX
+    trusted = trusted_smear(smear_sigma_px)
     return _windows(image, xy_pred_px, mesh, saturation_adu, smear_px, psf_sigma_px, gain_e_per_adu,
                     threshold_sigma, search_px, moved=False, trusted=trusted)
 
