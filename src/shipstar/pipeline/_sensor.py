@@ -405,7 +405,8 @@ class SensorProcessor:
         self._motion = MotionWindow(1) if correct else None
         self._motion_fit = None           # its last fit (the next frame's smear hint)
         # the smear hint's own check: the last prediction (t_s, exposure_s, extrapolated by s,
-        # smear (2,)) and the errors (px, extrapolated by s) of the last HINT_CHECK_FRAMES ones
+        # smear (2,) px, omega (3,) rad/s) and the errors (px, extrapolated by s) of the last
+        # HINT_CHECK_FRAMES ones
         self._smear_predicted = None
         self._hint_errors = deque(maxlen=HINT_CHECK_FRAMES)
         cam = config.camera                # the image centre's direction (sensor axes): the hint's star
@@ -520,32 +521,33 @@ class SensorProcessor:
         if fit is None or not (math.isfinite(t_s) and math.isfinite(exposure_s) and exposure_s > 0.0) \
                 or not 0.0 <= t_s - fit.t_last_s <= _MAX_SMEAR_HINT_GAP_S:
             return None
-        smear = self._smear_of(fit, t_s, exposure_s)
-        if smear is not None:
-            self._smear_predicted = (t_s, exposure_s, t_s - fit.t_last_s, smear)
-        return smear
-
-    def _smear_of(self, fit, t_s: float, exposure_s: float):
-        """The smear (dx, dy) px at the image centre of the motion ``fit`` over an exposure
-        ``exposure_s`` centred on ``t_s`` (None if not finite)."""
+        omega = fit.omega_at(t_s)
         u0 = self._centre_u
-        d = np.cross(fit.omega_at(t_s), u0) * (0.5 * exposure_s)     # u(t) = u0 - (omega x u0) t
+        d = np.cross(omega, u0) * (0.5 * exposure_s)                 # u(t) = u0 - (omega x u0) t
         ends = self.config.camera.project(np.array([u0 + d, u0 - d]))
         smear = ends[1] - ends[0]
-        return smear if np.all(np.isfinite(smear)) else None
+        if not np.all(np.isfinite(smear)):
+            return None
+        self._smear_predicted = (t_s, exposure_s, t_s - fit.t_last_s, smear, omega)
+        return smear
 
-    def _check_hint(self, fit, t_s: float) -> None:
-        """Record the error of this frame's smear prediction: against the smear of ``fit``,
-        the motion fitted with this frame's attitude too (its rate at ``t_s`` is then
-        interpolated, not extrapolated: a few 0.001 px at sea, where the prediction's
-        extrapolation over a frame period is ~0.01 px off)."""
+    def _check_hint(self, omega_rad_per_s, t_s: float) -> None:
+        """Record the error of this frame's smear prediction against the smear of the rate
+        ``omega_rad_per_s`` (3,, sensor axes) at ``t_s`` of the motion fitted with this
+        frame's attitude too (its rate at ``t_s`` then interpolated, not extrapolated: a few
+        0.001 px at sea, where the prediction's extrapolation over a frame period is ~0.01 px
+        off).  The smears' difference at the image centre, ``|(omega - omega_predicted) x
+        u0| T`` in pixels (the projection's scale there, ``f / pixel``; to first order in the
+        exposure's turn)."""
         predicted, self._smear_predicted = self._smear_predicted, None
         if predicted is None or predicted[0] != t_s:
             return
-        _, exposure_s, gap_s, smear = predicted
-        now = self._smear_of(fit, t_s, exposure_s)
-        if now is not None:
-            self._hint_errors.append((float(np.hypot(*(smear - now))), gap_s))
+        _, exposure_s, gap_s, _, omega = predicted
+        cam = self.config.camera
+        d = np.cross(np.asarray(omega_rad_per_s, float) - omega, self._centre_u)
+        error_px = math.sqrt(float(d @ d)) * exposure_s * cam.f_mm / cam.pixel_mm
+        if math.isfinite(error_px):
+            self._hint_errors.append((error_px, gap_s))
 
     def _smear_sigma_px(self, t_s: float):
         """The error (px) of this frame's smear prediction (:meth:`_predicted_smear_px`),
@@ -706,11 +708,11 @@ class SensorProcessor:
         fit = self._motion_fit = self._motion.fit(t_s)
         if fit is None:                          # the sensor's first frames: motion not known yet
             return replace(fr, streak_correction_arcsec=math.nan)
-        self._check_hint(fit, t_s)
+        omega = fit.omega_at(t_s)
+        self._check_hint(omega, t_s)
         cam = self.config.camera
         model = StreakModel(cam.psf_sigma_px, cam.pixel_mm / cam.f_mm) if extracted else None
-        return streak_corrected(fr, fit.omega_at(t_s), fit.alpha_at(t_s), self.config.installation, self.options,
-                                model)
+        return streak_corrected(fr, omega, fit.alpha_at(t_s), self.config.installation, self.options, model)
 
     # -- public ----------------------------------------------------------------------------
     def process(self, frame, index: int, t_s: float, *, site=None, weather=None) -> FrameResult:
