@@ -42,6 +42,7 @@ import math
 import time
 from collections import deque
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -373,6 +374,16 @@ def resolve_frame(fr: FrameResult, w_sensor, installation, options, streak_corre
                    streak_correction_arcsec=float(streak_correction_arcsec))
 
 
+class _SmearPrediction(NamedTuple):
+    """A frame's smear prediction, kept for its check (:meth:`SensorProcessor._check_hint`)."""
+
+    t_s: float                      # the frame's mid-exposure time, s since the session start
+    exposure_s: float
+    gap_s: float                    # how far the motion fit was extrapolated to it, s
+    smear_px: np.ndarray            # (2,) (dx, dy) at the image centre
+    omega_rad_per_s: np.ndarray     # (3,) the fit's rate at t_s, sensor axes
+
+
 class SensorProcessor:
     """Processes one sensor's frames in time order (keeps the tracking state).
 
@@ -404,9 +415,8 @@ class SensorProcessor:
         correct = options.streak_correction and config.installation is not None
         self._motion = MotionWindow(1) if correct else None
         self._motion_fit = None           # its last fit (the next frame's smear hint)
-        # the smear hint's own check: the last prediction (t_s, exposure_s, extrapolated by s,
-        # smear (2,) px, omega (3,) rad/s) and the errors (px, extrapolated by s) of the last
-        # HINT_CHECK_FRAMES ones
+        # the smear hint's own check: the last prediction (_SmearPrediction) and the errors
+        # (px, the motion extrapolated by s) of the last HINT_CHECK_FRAMES ones
         self._smear_predicted = None
         self._hint_errors = deque(maxlen=HINT_CHECK_FRAMES)
         cam = config.camera                # the image centre's direction (sensor axes): the hint's star
@@ -528,7 +538,7 @@ class SensorProcessor:
         smear = ends[1] - ends[0]
         if not np.all(np.isfinite(smear)):
             return None
-        self._smear_predicted = (t_s, exposure_s, t_s - fit.t_last_s, smear, omega)
+        self._smear_predicted = _SmearPrediction(t_s, exposure_s, t_s - fit.t_last_s, smear, omega)
         return smear
 
     def _check_hint(self, omega_rad_per_s, t_s: float) -> None:
@@ -540,14 +550,13 @@ class SensorProcessor:
         u0| T`` in pixels (the projection's scale there, ``f / pixel``; to first order in the
         exposure's turn)."""
         predicted, self._smear_predicted = self._smear_predicted, None
-        if predicted is None or predicted[0] != t_s:
+        if predicted is None or predicted.t_s != t_s:
             return
-        _, exposure_s, gap_s, _, omega = predicted
         cam = self.config.camera
-        d = np.cross(np.asarray(omega_rad_per_s, float) - omega, self._centre_u)
-        error_px = math.sqrt(float(d @ d)) * exposure_s * cam.f_mm / cam.pixel_mm
+        d = np.cross(np.asarray(omega_rad_per_s, float) - predicted.omega_rad_per_s, self._centre_u)
+        error_px = math.sqrt(float(d @ d)) * predicted.exposure_s * cam.f_mm / cam.pixel_mm
         if math.isfinite(error_px):
-            self._hint_errors.append((error_px, gap_s))
+            self._hint_errors.append((error_px, predicted.gap_s))
 
     def _smear_sigma_px(self, t_s: float):
         """The error (px) of this frame's smear prediction (:meth:`_predicted_smear_px`),
@@ -558,8 +567,8 @@ class SensorProcessor:
         measuring the smear again from the frame's brightest streaks (~0.1 px off)."""
         predicted = self._smear_predicted
         errors = self._hint_errors
-        if predicted is None or predicted[0] != t_s or len(errors) < HINT_CHECK_FRAMES \
-                or predicted[2] > max(gap for _, gap in errors) + 1e-6:
+        if predicted is None or predicted.t_s != t_s or len(errors) < HINT_CHECK_FRAMES \
+                or predicted.gap_s > max(gap for _, gap in errors) + 1e-6:
             return None
         return max(err for err, _ in errors)
 
