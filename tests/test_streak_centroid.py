@@ -153,7 +153,8 @@ def _rotvec_between(C_true, C_est):
 def _sea_session_with_hints(monkeypatch, duration_s, exposure_s):
     """An image-level sea session (``test_pipeline._image_sea_session``) processed with the
     pipeline's smear hints recorded: ``(spec, frames, track, weather, truth, configs, result,
-    hints)``, ``hints`` a list of ``(sensor name, t_s, frame, hint or None)``."""
+    hints)``, ``hints`` a list of ``(sensor name, t_s, frame, hint or None, stated error px or
+    None)``."""
     import sys
     from pathlib import Path
 
@@ -169,7 +170,7 @@ def _sea_session_with_hints(monkeypatch, duration_s, exposure_s):
 
     def recorded(self, frame, t_s):
         smear = predict(self, frame, t_s)
-        hints.append((self.config.name, t_s, frame, smear))
+        hints.append((self.config.name, t_s, frame, smear, self._smear_sigma_px(t_s)))
         return smear
 
     monkeypatch.setattr(_sensor.SensorProcessor, "_smear_hint_px", recorded)
@@ -200,7 +201,7 @@ def test_smear_hint_is_the_true_image_motion_and_leaves_the_attitudes_as_good(mo
 
     T = 0.03
     spec, frames, track, weather, truth, configs, with_hint, hints = _sea_session_with_hints(monkeypatch, 2.5, T)
-    given = [(name, t, s) for name, t, _, s in hints if s is not None and np.any(s)]
+    given = [(name, t, s) for name, t, _, s, _ in hints if s is not None and np.any(s)]
     assert len(given) >= 0.5 * len(hints)                      # 30 ms at sea: most frames are streaks
     for name, t_s, smear in given:
         true = _true_centre_motion_px(spec, name, t_s, T)
@@ -216,11 +217,12 @@ def test_smear_hint_is_the_true_image_motion_and_leaves_the_attitudes_as_good(mo
 
 
 def test_short_predicted_smear_is_a_point_hint_that_finds_the_same_stars(monkeypatch):
-    """A smear predicted shorter than ``POINT_HINT_MAX_PX`` is given as ``(0, 0)``: the true
-    image motion is then under the 3 px from which the extraction's own estimate takes a
-    frame as smeared, and the frame's stars are those the extraction finds without a hint
-    (it would have estimated the smear and found the frame unsmeared)."""
-    from shipstar.extract._core import frame_extraction
+    """A smear predicted shorter than ``POINT_HINT_MAX_PX`` (``TRUSTED_POINT_HINT_MAX_PX`` with
+    a trusted stated error) is given as ``(0, 0)``: the true image motion is then under the
+    3 px from which the extraction's own estimate takes a frame as smeared, and the frame's
+    stars are those the extraction finds without a hint (it would have estimated the smear
+    and found the frame unsmeared)."""
+    from shipstar.extract._core import TRUSTED_SMEAR_SIGMA_PX, frame_extraction
     from shipstar.extract._smear import AUTO_SMEAR_MIN_PX
     from shipstar.pipeline import PipelineOptions
     from shipstar.pipeline import _sensor
@@ -229,9 +231,15 @@ def test_short_predicted_smear_is_a_point_hint_that_finds_the_same_stars(monkeyp
     spec, *_, hints = _sea_session_with_hints(monkeypatch, 6.0, T)
     zero = [h for h in hints if h[3] is not None and not np.any(h[3])]
     assert len(zero) >= 5, [h[3] for h in hints]
-    for name, t_s, frame, _ in zero:
+    trusted = [h for h in zero if h[4] is not None and h[4] <= TRUSTED_SMEAR_SIGMA_PX]
+    assert len(trusted) >= 5, [h[4] for h in zero]
+    for name, t_s, frame, _, sigma in zero:
         true = _true_centre_motion_px(spec, name, t_s, T)
-        assert np.hypot(*true) < _sensor.POINT_HINT_MAX_PX + 0.2 < AUTO_SMEAR_MIN_PX, (name, t_s, true)
+        if sigma is not None and sigma <= TRUSTED_SMEAR_SIGMA_PX:
+            assert np.hypot(*true) < _sensor.TRUSTED_POINT_HINT_MAX_PX + 3 * sigma + 0.01 < AUTO_SMEAR_MIN_PX, \
+                (name, t_s, true, sigma)
+        else:
+            assert np.hypot(*true) < _sensor.POINT_HINT_MAX_PX + 0.2 < AUTO_SMEAR_MIN_PX, (name, t_s, true)
         cam = spec.sensor(name).camera
         kw = dict(threshold_sigma=PipelineOptions().threshold_sigma, psf_sigma_px=cam.psf_sigma_px,
                   gain_e_per_adu=cam.gain_e_per_adu)

@@ -64,6 +64,11 @@ _MAX_SMEAR_HINT_GAP_S = 0.5
 #: only from ``extract._smear.AUTO_SMEAR_MIN_PX``, 3 px: a 0.5 px margin, against the
 #: prediction's ~0.1 px error at 3 px).
 POINT_HINT_MAX_PX = 2.5
+#: A predicted smear shorter than this (px) whose stated error is within
+#: ``extract._core.TRUSTED_SMEAR_SIGMA_PX`` is given as a zero hint too: the prediction is
+#: then ~0.005 px off, and the margin to the 3 px is that of the extraction's own estimate
+#: of the smear (~0.1 px off), which finds such frames unsmeared.
+TRUSTED_POINT_HINT_MAX_PX = 2.8
 #: The smear hint's error is measured on this many of the last frames: each frame's
 #: prediction against the smear of the motion fitted with that frame's own attitude
 #: (:meth:`SensorProcessor._smear_sigma_px`).
@@ -508,15 +513,18 @@ class SensorProcessor:
         the common smear again from the streaks it finds (docs/extraction.md, *Smeared
         frames*), so a hint a few per cent off costs nothing.  A predicted smear shorter than
         :data:`POINT_HINT_MAX_PX` gives ``(0, 0)``: point sources, the smear's estimate
-        skipped (it would have found the frame unsmeared: the same stars).
+        skipped (it would have found the frame unsmeared: the same stars); so does one
+        shorter than :data:`TRUSTED_POINT_HINT_MAX_PX` whose stated error is trusted
+        (:meth:`_smear_sigma_px`).
         """
-        from shipstar.extract._core import MAX_SMEAR_PX
+        from shipstar.extract._core import MAX_SMEAR_PX, trusted_smear
 
         smear = self._predicted_smear_px(frame, t_s)
         if smear is None:
             return None
         length = math.hypot(*smear)
-        if length < POINT_HINT_MAX_PX:
+        if length < POINT_HINT_MAX_PX or (length < TRUSTED_POINT_HINT_MAX_PX
+                                          and trusted_smear(self._smear_sigma_px(t_s))):
             return np.zeros(2)
         if not SMEAR_HINT_MIN_PX <= length <= MAX_SMEAR_PX:
             return None
