@@ -912,6 +912,34 @@ def test_compiled_mesh_sums_and_value_step_are_the_numpy_reference_bit_for_bit()
     assert value_step(np.full((2, 5), 1.0)) == 0.0
 
 
+def test_compiled_cholesky_substitutions_are_the_numpy_reference_bit_for_bit():
+    """The Cholesky solve's two substitutions (``_fit._cho_solve``), compiled, against the
+    NumPy code they replaced (kept as the reference): the same float64 values for stacks of
+    every size the fits use (k = 2-7, one or many right-hand sides), LAPACK's factors and the
+    floored ones of singular matrices, badly scaled and non-finite entries; and the solve
+    itself against ``np.linalg.solve``."""
+    from shipstar.extract._fit import _cho_solve, _cho_solve_python, _cholesky, spd_solve
+
+    rng = np.random.default_rng(41)
+    for k in range(2, 8):
+        for m in (1, 3, k):
+            n = 50
+            g = rng.normal(size=(n, k, k + 3)) * 10.0 ** rng.uniform(-4, 6, (n, k, 1))
+            a = g @ g.transpose(0, 2, 1)
+            b = rng.normal(size=(n, k, m)) * 10.0 ** rng.uniform(-3, 3, (n, 1, 1))
+            for low in (np.linalg.cholesky(a), _cholesky(a), _cholesky(np.zeros_like(a))):
+                np.testing.assert_array_equal(_cho_solve(low, b), _cho_solve_python(low, b))
+            bad = b.copy()
+            bad[3, 0, 0], bad[7, -1, -1] = np.nan, np.inf
+            with np.errstate(invalid="ignore"):                   # (inf - inf in the reference)
+                expected = _cho_solve_python(low, bad)
+            np.testing.assert_array_equal(_cho_solve(low, bad), expected)
+            well = rng.normal(size=(n, k, k + 3))
+            well = well @ well.transpose(0, 2, 1) + np.eye(k)
+            np.testing.assert_allclose(spd_solve(well, b), np.linalg.solve(well, b), rtol=1e-9, atol=1e-12)
+    assert _cho_solve(np.zeros((0, 4, 4)), np.zeros((0, 4, 4))).shape == (0, 4, 4)
+
+
 def test_saturation_test_in_the_pixels_own_type_is_the_float_comparison():
     """``at_or_above`` compares integer frames against ceil(level) in their own type (no
     float64 copy of the frame): the same mask as ``image >= level`` for every integer

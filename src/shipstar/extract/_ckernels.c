@@ -23,6 +23,7 @@
  *   label_runs        8- (or 4-) connected components of sorted candidate pixels (union-find on runs)
  *   suppress          greedy suppression of peaks within a stronger peak's streak footprint
  *   erf_array         erf of an array (libm)
+ *   cho_solve         the two triangular substitutions of a Cholesky solve, matrix by matrix
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -1315,6 +1316,52 @@ static PyObject *py_erf_array(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+/* ------------------------------------------------------------------ cho_solve */
+
+/* cho_solve(low (N, k, k) f8, y (N, k, m) f8 in place, N, k, m): solve (L L^T) x = y for each
+ * of the N systems, x written over y.  The operations of _fit._cho_solve_python in its
+ * order, element by element: y_i /= L_ii, then y_r -= L_ri y_i for r > i (forward); y_i /= L_ii,
+ * then y_r -= L_ir y_i for r < i (back); each product rounded before its subtraction (no
+ * fused multiply-add: the C99 mode and the baseline x86-64 target contract none), so the
+ * results are NumPy's to the bit (tests/test_extract_kernels.py). */
+static PyObject *py_cho_solve(PyObject *self, PyObject *args) {
+    Py_buffer lb, yb;
+    Py_ssize_t N;
+    int k, m;
+    if (!PyArg_ParseTuple(args, "y*w*nii", &lb, &yb, &N, &k, &m)) return NULL;
+    const double *low = lb.buf;
+    double *y = yb.buf;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t s = 0; s < N; s++) {
+        const double *L = low + s * (Py_ssize_t)k * k;
+        double *Y = y + s * (Py_ssize_t)k * m;
+        for (int i = 0; i < k; i++) {
+            double d = L[i * k + i];
+            double *yi = Y + (Py_ssize_t)i * m;
+            for (int c = 0; c < m; c++) yi[c] /= d;
+            for (int r = i + 1; r < k; r++) {
+                double l = L[r * k + i];
+                double *yr = Y + (Py_ssize_t)r * m;
+                for (int c = 0; c < m; c++) yr[c] -= l * yi[c];
+            }
+        }
+        for (int i = k - 1; i >= 0; i--) {
+            double d = L[i * k + i];
+            double *yi = Y + (Py_ssize_t)i * m;
+            for (int c = 0; c < m; c++) yi[c] /= d;
+            for (int r = 0; r < i; r++) {
+                double l = L[i * k + r];
+                double *yr = Y + (Py_ssize_t)r * m;
+                for (int c = 0; c < m; c++) yr[c] -= l * yi[c];
+            }
+        }
+    }
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&lb);
+    PyBuffer_Release(&yb);
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"streak_equations", py_streak_equations, METH_VARARGS, "Normal equations of the smeared-PSF model."},
     {"streak_fit", py_streak_fit, METH_VARARGS, "Levenberg-Marquardt fits of the smeared-PSF model."},
@@ -1334,6 +1381,7 @@ static PyMethodDef methods[] = {
     {"label_runs", py_label_runs, METH_VARARGS, "8-connected components of sorted candidate pixels."},
     {"suppress", py_suppress, METH_VARARGS, "Greedy suppression of peaks in a stronger one's footprint."},
     {"erf_array", py_erf_array, METH_VARARGS, "erf of a float64 array."},
+    {"cho_solve", py_cho_solve, METH_VARARGS, "Cholesky substitutions of stacked systems, in place."},
     {NULL, NULL, 0, NULL},
 };
 

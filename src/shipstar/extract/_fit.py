@@ -135,7 +135,13 @@ def _cholesky(a):
 
 
 def _cho_solve(low, b):
-    """Solve (L L^T) x = b for a stack: ``low`` (N, k, k), ``b`` (N, k, m) -> (N, k, m)."""
+    """Solve (L L^T) x = b for a stack: ``low`` (N, k, k), ``b`` (N, k, m) -> (N, k, m)
+    (compiled: :func:`_cho_solve_python`'s values to the bit, without its ~4 k NumPy calls)."""
+    return _kernels.cho_solve(low, b)
+
+
+def _cho_solve_python(low, b):
+    """:func:`_cho_solve` in NumPy (the compiled kernel's reference)."""
     k = low.shape[1]
     diag = np.diagonal(low, axis1=1, axis2=2)[:, :, None]                 # (N, k, 1)
     y = np.array(b, dtype=float)

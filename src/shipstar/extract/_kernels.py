@@ -338,3 +338,16 @@ def erf(x) -> np.ndarray:
     out = np.empty_like(x)
     _ckernels.erf_array(x, out, x.size)
     return out
+
+
+def cho_solve(low, b):
+    """Solve ``(L L^T) x = b`` for stacks ``low`` (N, k, k) lower triangular and ``b``
+    (N, k, m): the substitutions of ``_fit._cho_solve_python``, matrix by matrix, the same
+    values to the bit."""
+    low = _f8(low)
+    y = np.array(b, dtype=np.float64, order="C")                    # a copy, solved in place
+    n, k = low.shape[:2]
+    if low.shape != (n, k, k) or y.ndim != 3 or y.shape[:2] != (n, k):
+        raise ValueError(f"cho_solve of shapes {low.shape} and {y.shape}")
+    _ckernels.cho_solve(low, y, n, k, y.shape[2])
+    return y

@@ -162,6 +162,7 @@ def _centroids(arr, mesh, peaks, stats, refine, sigma, inv_gain):
     flags = stats["flags"] | np.where(np.all(win.valid, axis=(1, 2)), 0, FLAG_EDGE)
     saturated = (flags & FLAG_SATURATED) != 0
     p = start_values(win, sigma if have_sigma else 1.0)
+    start_flux = p[:, 2]                    # (the start's flux does not depend on the sigma given)
     ok = np.zeros(len(peaks), dtype=bool)
     if refine == "gaussian":
         if have_sigma:
@@ -169,7 +170,7 @@ def _centroids(arr, mesh, peaks, stats, refine, sigma, inv_gain):
         ok &= ~saturated & (p[:, 2] > 0)
         flags = flags | np.where(ok | saturated, 0, FLAG_FIT_FAILED)
     xy = np.where(ok[:, None], p[:, :2], stats["cog"])
-    flux = np.where(ok, p[:, 2], start_values(win, 1.0)[:, 2])
+    flux = np.where(ok, p[:, 2], start_flux)
     flux = np.where(saturated, np.maximum(flux, stats["cog_flux"]), flux)
     centre = np.column_stack([win.x0, win.y0]) + win.size // 2
     p_at = np.column_stack([np.clip(xy, centre - 1.0, centre + 1.0), flux, p[:, 3],
