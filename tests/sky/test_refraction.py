@@ -384,3 +384,20 @@ def test_almanac_refuses_conditions_it_cannot_model():
     vacuum = Weather(pressure_hpa=0.0)
     assert float(refraction_rad(0.5, vacuum, "erfa")) == 0.0
     _one_line_error(refraction_rad, 0.5, Weather(1000.0, -55.0), "almanac", match="temperature_c = -55")
+
+
+def test_weather_checks_every_field():
+    """Every field of Weather is validated (its ranges table names them all): a value outside
+    its range, non-finite or not a number is a one-line ShipstarError, field by field."""
+    from dataclasses import fields
+
+    from shipstar.sky.refraction import _WEATHER_RANGES, Weather
+
+    names = [f.name for f in fields(Weather)]
+    assert list(_WEATHER_RANGES) == names
+    for name in names:
+        lo, hi = _WEATHER_RANGES[name]
+        for bad in (lo - 1.0, hi + 1.0, float("nan"), float("inf"), "1", True):
+            with pytest.raises(ShipstarError, match=f"Weather.{name}"):
+                Weather(**{name: bad})
+        assert isinstance(getattr(Weather(**{name: int(hi)}), name), float)

@@ -36,7 +36,7 @@ from __future__ import annotations
 import functools
 import math
 import numbers
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -98,17 +98,16 @@ class Weather:
     wavelength_um: float = 0.55
 
     def __post_init__(self):
-        for f in fields(self):
-            value = getattr(self, f.name)
+        for name, (lo, hi) in _WEATHER_RANGES.items():        # every field (a test checks)
+            value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, numbers.Real):
-                raise ShipstarError(f"Weather.{f.name} must be a number, got {value!r}")
+                raise ShipstarError(f"Weather.{name} must be a number, got {value!r}")
             value = float(value)
-            lo, hi = _WEATHER_RANGES[f.name]
             if not math.isfinite(value):
-                raise ShipstarError(f"Weather.{f.name} must be finite, got {value}")
+                raise ShipstarError(f"Weather.{name} must be finite, got {value}")
             if not lo <= value <= hi:
-                raise ShipstarError(f"Weather.{f.name} = {value:g} is outside [{lo:g}, {hi:g}]")
-            object.__setattr__(self, f.name, value)
+                raise ShipstarError(f"Weather.{name} = {value:g} is outside [{lo:g}, {hi:g}]")
+            object.__setattr__(self, name, value)
 
 
 # -- validation helpers ------------------------------------------------------------------
