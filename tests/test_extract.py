@@ -940,6 +940,25 @@ def test_compiled_cholesky_substitutions_are_the_numpy_reference_bit_for_bit():
     assert _cho_solve(np.zeros((0, 4, 4)), np.zeros((0, 4, 4))).shape == (0, 4, 4)
 
 
+def test_compiled_whitened_grid_sums_are_the_mesh_on_grid_values():
+    """The box-noise factor's whitened sums (``_kernels.grid_box_z``) against
+    ``(total - 9 bg) / (3 noise)`` with ``Mesh.on_grid``'s bilinear values: equal to rounding
+    (on_grid's matrix products may fuse a multiply-add), on grids of one block per axis too."""
+    from shipstar.extract._background import Mesh
+    from shipstar.extract._kernels import grid_box_z
+
+    rng = np.random.default_rng(43)
+    for (ny, nx), block, step, shape in (((32, 32), 32, 16, (1024, 1024)), ((3, 5), 16, 3, (48, 80)),
+                                         ((1, 4), 8, 2, (8, 32)), ((4, 1), 8, 2, (32, 8)), ((1, 1), 8, 3, (8, 8))):
+        mesh = Mesh(bg=rng.uniform(90, 110, (ny, nx)), noise=rng.uniform(2, 4, (ny, nx)), block_px=block,
+                    shape_hw=shape)
+        rows, cols = np.arange(1, shape[0] - 1, step), np.arange(1, shape[1] - 1, step)
+        total = rng.uniform(800, 1000, (rows.size, cols.size))
+        bg, noise = mesh.on_grid(cols, rows)
+        np.testing.assert_allclose(grid_box_z(total, mesh.bg, mesh.noise, block, step),
+                                   (total - 9.0 * bg) / (3.0 * noise), rtol=1e-13, atol=1e-12)
+
+
 def test_saturation_test_in_the_pixels_own_type_is_the_float_comparison():
     """``at_or_above`` compares integer frames against ceil(level) in their own type (no
     float64 copy of the frame): the same mask as ``image >= level`` for every integer

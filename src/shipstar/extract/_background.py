@@ -15,7 +15,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from shipstar.extract._kernels import block_stats, grid_box_sums, median3, mesh_at, value_step
+from shipstar.extract._kernels import block_stats, grid_box_sums, grid_box_z, median3, mesh_at, value_step
 
 __all__ = ["Mesh", "estimate_mesh", "median"]
 
@@ -164,8 +164,8 @@ def _box_noise_factor(image, mesh, max_samples=4096):
     if rows.size * cols.size < 16:
         return 1.0
     total = grid_box_sums(image, step, rows.size, cols.size)     # compiled: _box_sums_python's sums
-    bg, noise = mesh.on_grid(cols, rows)
-    z = ((total - 9.0 * bg) / (3.0 * noise)).ravel()
+    # compiled: (total - 9 bg) / (3 noise), bg and noise as mesh.on_grid(cols, rows) gives them
+    z = grid_box_z(total, mesh.bg, mesh.noise, mesh.block_px, step).ravel()
     z -= median(z)
     return float(max(1.0, 1.4826 * median(np.abs(z))))
 

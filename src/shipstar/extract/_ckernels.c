@@ -24,6 +24,7 @@
  *   suppress          greedy suppression of peaks within a stronger peak's streak footprint
  *   erf_array         erf of an array (libm)
  *   cho_solve         the two triangular substitutions of a Cholesky solve, matrix by matrix
+ *   grid_box_z        the mesh's whitened 3 x 3 sums on a regular grid (its box-noise factor)
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -1316,6 +1317,69 @@ static PyObject *py_erf_array(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+/* ------------------------------------------------------------------ grid_box_z */
+
+/* The bilinear interpolation of Mesh.on_grid along one axis: grid point g's blocks i0, i1 and
+ * weights w0 = 1 - f, w1 = f (Mesh._weights). */
+static void grid_weights(double coord, double block, Py_ssize_t nb, Py_ssize_t *i0, Py_ssize_t *i1, double *w0,
+                         double *w1) {
+    double f;
+    mesh_weights(coord, block, nb, i0, i1, &f);
+    *w0 = 1.0 - f;
+    *w1 = f;
+}
+
+/* grid_box_z(total (nr, nc) f8, bg, noise (ny, nx) f8, out (nr, nc) f8, nr, nc, ny, nx, block, step):
+ * (total - 9 bg) / (3 noise) at the grid pixels (1 + step i, 1 + step j), bg and noise
+ * bilinear between block centres as Mesh.on_grid's products wy @ grid @ wx^T (each row's
+ * two weights; a one-block axis: its single block, weight 1). */
+static PyObject *py_grid_box_z(PyObject *self, PyObject *args) {
+    Py_buffer tb, bb, nb_, ob;
+    Py_ssize_t nr, nc, ny, nx, step;
+    double block;
+    if (!PyArg_ParseTuple(args, "y*y*y*w*nnnndn", &tb, &bb, &nb_, &ob, &nr, &nc, &ny, &nx, &block, &step))
+        return NULL;
+    int ok = nr >= 0 && nc >= 0 && ny >= 1 && nx >= 1 && tb.len == (Py_ssize_t)(nr * nc * sizeof(double))
+             && ob.len == tb.len && bb.len == (Py_ssize_t)(ny * nx * sizeof(double)) && nb_.len == bb.len;
+    if (ok) {
+        const double *total = tb.buf, *bg = bb.buf, *noise = nb_.buf;
+        double *out = ob.buf;
+        Py_BEGIN_ALLOW_THREADS
+        for (Py_ssize_t i = 0; i < nr; i++) {
+            Py_ssize_t y0, y1;
+            double wy0, wy1;
+            grid_weights((double)(1 + step * i), block, ny, &y0, &y1, &wy0, &wy1);
+            for (Py_ssize_t j = 0; j < nc; j++) {
+                Py_ssize_t x0, x1;
+                double wx0, wx1;
+                grid_weights((double)(1 + step * j), block, nx, &x0, &x1, &wx0, &wx1);
+                const double *grids[2] = {bg, noise};
+                double v[2];
+                for (int g = 0; g < 2; g++) {
+                    const double *q = grids[g];
+                    double c0, c1;
+                    if (ny > 1) {
+                        c0 = wy0 * q[y0 * nx + x0] + wy1 * q[y1 * nx + x0];
+                        c1 = wy0 * q[y0 * nx + x1] + wy1 * q[y1 * nx + x1];
+                    } else {
+                        c0 = (wy0 + wy1) * q[x0];
+                        c1 = (wy0 + wy1) * q[x1];
+                    }
+                    v[g] = nx > 1 ? wx0 * c0 + wx1 * c1 : (wx0 + wx1) * c0;
+                }
+                out[i * nc + j] = (total[i * nc + j] - 9.0 * v[0]) / (3.0 * v[1]);
+            }
+        }
+        Py_END_ALLOW_THREADS
+    }
+    PyBuffer_Release(&tb); PyBuffer_Release(&bb); PyBuffer_Release(&nb_); PyBuffer_Release(&ob);
+    if (!ok) {
+        PyErr_SetString(PyExc_ValueError, "grid_box_z: bad sizes");
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
 /* ------------------------------------------------------------------ cho_solve */
 
 /* cho_solve(low (N, k, k) f8, y (N, k, m) f8 in place, N, k, m): solve (L L^T) x = y for each
@@ -1382,6 +1446,7 @@ static PyMethodDef methods[] = {
     {"suppress", py_suppress, METH_VARARGS, "Greedy suppression of peaks in a stronger one's footprint."},
     {"erf_array", py_erf_array, METH_VARARGS, "erf of a float64 array."},
     {"cho_solve", py_cho_solve, METH_VARARGS, "Cholesky substitutions of stacked systems, in place."},
+    {"grid_box_z", py_grid_box_z, METH_VARARGS, "Whitened 3 x 3 sums on a regular grid of the mesh."},
     {NULL, NULL, 0, NULL},
 };
 

@@ -351,3 +351,15 @@ def cho_solve(low, b):
         raise ValueError(f"cho_solve of shapes {low.shape} and {y.shape}")
     _ckernels.cho_solve(low, y, n, k, y.shape[2])
     return y
+
+
+def grid_box_z(total, bg, noise, block_px: float, step: int):
+    """``(total - 9 bg) / (3 noise)`` (n_rows, n_cols) at the grid pixels ``(1 + step i,
+    1 + step j)`` of :func:`grid_box_sums`'s ``total``, ``bg`` and ``noise`` (n_by, n_bx)
+    bilinear between block centres (``_background.Mesh.on_grid``'s weights)."""
+    total, bg, noise = _f8(total), _f8(bg), _f8(noise)
+    if total.ndim != 2 or bg.ndim != 2 or noise.shape != bg.shape or min(bg.shape) < 1:
+        raise ValueError("grid_box_z: bad shapes")
+    out = np.empty_like(total)
+    _ckernels.grid_box_z(total, bg, noise, out, *total.shape, *bg.shape, float(block_px), int(step))
+    return out
