@@ -577,6 +577,26 @@ def test_smeared_stars_are_complete_unbiased_and_near_the_cramer_rao_bound(rate_
         assert np.all(result.smear_px == 0.0)
 
 
+def test_calibration_streaks_are_spread_over_the_field():
+    """``spread_over_field`` takes the brightest object of each of 3 x 3 regions first (in
+    order of brightness), then each region's second brightest, and so on: of 19 objects
+    whose 9 brightest sit in one corner, 12 are taken from all 9 regions -- every region's
+    brightest, the two second brightest (the corner's and the middle's), the corner's third;
+    fewer objects than asked: all of them, in order."""
+    from shipstar.extract._smear import spread_over_field
+
+    corner = np.array([[10 + 5 * k, 12 + 3 * k] for k in range(9)])           # brightest first
+    rest = np.array([[500, 40], [900, 60], [40, 500], [500, 500], [900, 500], [40, 900], [500, 900],
+                     [900, 900], [510, 510], [20, 30]])
+    col, row = np.concatenate([corner, rest]).T
+    pick = spread_over_field(col, row, (1000, 1000), 12)
+    assert list(pick) == sorted(pick) and len(pick) == 12
+    region = np.minimum(row[pick] * 3 // 1000, 2) * 3 + np.minimum(col[pick] * 3 // 1000, 2)
+    assert set(region.tolist()) == set(range(9))                         # every region
+    np.testing.assert_array_equal(pick, [0, 1, 2, 9, 10, 11, 12, 13, 14, 15, 16, 17])
+    np.testing.assert_array_equal(spread_over_field(col[:5], row[:5], (1000, 1000), 12), np.arange(5))
+
+
 def test_line_filter_is_the_sum_along_the_digital_line():
     """The line filter (flattened shifts, taps taken in pairs) against the plain sum over its taps."""
     from shipstar.extract._matched import LineFilter, line_filter

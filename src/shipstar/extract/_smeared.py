@@ -19,7 +19,7 @@ from shipstar.extract._matched import LineFilter, detect_streaks
 from shipstar.extract._point import SEGMENT_SIGMA, SHARPEST_PSF_SIGMA_PX, bright_objects, too_sharp
 from shipstar.extract._result import FLAG_EDGE, FLAG_ELONGATED, FLAG_FIT_FAILED, FLAG_SATURATED
 from shipstar.extract._smear import (_CALIBRATION_STARS, FIELD_MIN_PX, STREAK_MIN_PX, binned_guess, calibrate,
-                                     smear_field)
+                                     smear_field, spread_over_field)
 from shipstar.extract._streak import (
     BG,
     DX,
@@ -49,9 +49,6 @@ _REFIT_CONVERGED = 0.2
 _FIT_SNR_FRACTION = 0.8
 #: Fraction of a star's largest model pixel that delimits its footprint (flags, peak value).
 _FOOTPRINT_FRACTION = 0.02
-#: The streaks that measure the common smear again are taken over this many regions a side
-#: (:func:`_spread`), up to ``_smear._CALIBRATION_STARS`` of them.
-_SPREAD_CELLS = 3
 
 
 def sharp_pixels(image, mesh, too_sharp, segment_sigma=SEGMENT_SIGMA, idx=None):
@@ -185,41 +182,22 @@ def measure_streaks(image, mesh, smear, *, threshold_sigma, segment_sigma, sigma
 
 def _refined_smear(image, mesh, det, smear, sigma, inv_gain, bad, saturated):
     """The common smear measured from a predicted one: free-smear fits of the brightest
-    unsaturated streaks detected with it, taken over the whole field (:func:`_spread`;
-    :func:`shipstar.extract._smear.calibrate`), accepted on the evidence
+    unsaturated streaks detected with it, taken over the whole field
+    (:func:`~shipstar.extract._smear.spread_over_field`,
+    :func:`~shipstar.extract._smear.calibrate`), accepted on the evidence
     :func:`shipstar.extract._smear.frame_smear` asks of an estimate (at least 3 fits whose
     smear vectors agree); else the prediction."""
     order = np.argsort(-det["snr"], kind="stable")
     col, row = det["col"][order], det["row"][order]
     clean = np.ones(len(col), dtype=bool) if saturated is None else ~saturated[row, col]
     col, row = col[clean], row[clean]
-    pick = _spread(col, row, image.shape, _CALIBRATION_STARS)
+    pick = spread_over_field(col, row, image.shape, _CALIBRATION_STARS)
     refined, _, _, (n_ok, spread) = calibrate(image, mesh, bad, col[pick], row[pick], smear, sigma, inv_gain,
                                               fit_smear=True)
     length = float(np.hypot(*refined))
     if n_ok < 3 or not spread <= 0.2 * length + 0.5 or length < STREAK_MIN_PX:
         return np.asarray(smear, dtype=float)
     return refined
-
-
-def _spread(col, row, shape_hw, n: int, cells: int = _SPREAD_CELLS) -> np.ndarray:
-    """Indices of up to ``n`` of the streaks ``col``, ``row`` (brightest first) spread over
-    the field: the brightest of each of ``cells`` x ``cells`` regions, then each region's
-    second brightest, and so on (within a round, brightest first).
-
-    The smear varies over the field (a turn about the boresight rotates it, by +-11 % on
-    A1 at 80 ms): the median smear of the brightest streaks is that of wherever they are,
-    and on a field of equally bright stars the first ones found are one corner's (4-8 %
-    short on the tests' grid frames); spread over the field, it is the field's middle's.
-    """
-    height, width = shape_hw
-    region = np.minimum(row * cells // height, cells - 1) * cells + np.minimum(col * cells // width, cells - 1)
-    rank = np.zeros(len(col), dtype=np.int64)          # each streak's place among its region's
-    seen = np.zeros(cells * cells, dtype=np.int64)
-    for k, r in enumerate(region.tolist()):
-        rank[k] = seen[r]
-        seen[r] += 1
-    return np.sort(np.lexsort((np.arange(len(col)), rank))[:n]) if len(col) > n else np.arange(len(col))
 
 
 def _fit_with_field(win, p0, nodes, snr, inv_gain, smear):
