@@ -595,6 +595,13 @@ def test_calibration_streaks_are_spread_over_the_field():
     assert set(region.tolist()) == set(range(9))                         # every region
     np.testing.assert_array_equal(pick, [0, 1, 2, 9, 10, 11, 12, 13, 14, 15, 16, 17])
     np.testing.assert_array_equal(spread_over_field(col[:5], row[:5], (1000, 1000), 12), np.arange(5))
+    rng = np.random.default_rng(44)                      # against the rule written out, region by region
+    for n_obj in (13, 40, 300):
+        col, row = rng.integers(-2, 1202, n_obj), rng.integers(-2, 802, n_obj)   # (a few just off the frame)
+        region = np.clip(row * 3 // 800, 0, 2) * 3 + np.clip(col * 3 // 1200, 0, 2)
+        rank = [int(np.count_nonzero(region[:k] == region[k])) for k in range(n_obj)]
+        expected = sorted(sorted(range(n_obj), key=lambda k: (rank[k], k))[:12])
+        np.testing.assert_array_equal(spread_over_field(col, row, (800, 1200), 12), expected)
 
 
 def test_line_filter_is_the_sum_along_the_digital_line():

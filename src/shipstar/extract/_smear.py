@@ -130,14 +130,16 @@ def spread_over_field(col, row, shape_hw, n: int, cells: int = _SPREAD_CELLS) ->
     short on the tests' grid frames); spread over the field, it is the field's middle's
     (:func:`calibrate`'s objects, with a hint or without).
     """
+    if len(col) <= n:
+        return np.arange(len(col))
     height, width = shape_hw
-    region = np.minimum(row * cells // height, cells - 1) * cells + np.minimum(col * cells // width, cells - 1)
-    rank = np.zeros(len(col), dtype=np.int64)          # each streak's place among its region's
-    seen = np.zeros(cells * cells, dtype=np.int64)
-    for k, r in enumerate(region.tolist()):
-        rank[k] = seen[r]
-        seen[r] += 1
-    return np.sort(np.lexsort((np.arange(len(col)), rank))[:n]) if len(col) > n else np.arange(len(col))
+    col, row = np.asarray(col, np.int64), np.asarray(row, np.int64)
+    region = np.clip(row * cells // height, 0, cells - 1) * cells + np.clip(col * cells // width, 0, cells - 1)
+    by_region = np.argsort(region, kind="stable")              # each region's, brightest first
+    grouped = region[by_region]
+    rank = np.empty(len(col), dtype=np.int64)                  # each one's place among its region's
+    rank[by_region] = np.arange(len(col)) - np.searchsorted(grouped, grouped)
+    return np.sort(np.lexsort((np.arange(len(col)), rank))[:n])
 
 
 def calibrate(image, mesh, bad, col, row, smear, sigma, inv_gain, *, fit_smear, min_snr=0.0):
