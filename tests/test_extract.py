@@ -986,6 +986,28 @@ def test_compiled_whitened_grid_sums_are_the_mesh_on_grid_values():
                                    (total - 9.0 * bg) / (3.0 * noise), rtol=1e-13, atol=1e-12)
 
 
+def test_compiled_streak_start_parameters_are_the_numpy_reference_bit_for_bit():
+    """The streak fits' start parameters (``_streak.start_parameters``), compiled, against the
+    NumPy code they replaced (kept as the reference): the same float64 values -- the window
+    sums in NumPy's pairwise order -- for random windows of every size the fits use (up to
+    40 x 40: sums past NumPy's 128-element blocks), masked pixels, a common smear, one per
+    star or none, and one PSF sigma or one per star."""
+    from shipstar.extract._streak import StreakWindows, _start_parameters_python, start_parameters
+
+    rng = np.random.default_rng(45)
+    for trial in range(120):
+        n = int(rng.integers(0, 30))
+        wy, wx = (int(v) for v in rng.integers(3, 41, 2))
+        values = rng.normal(100, 10, (n, wy, wx)) + rng.uniform(0, 1e4, (n, 1, 1)) * (rng.random((n, wy, wx)) < 0.2)
+        col, row = rng.integers(0, 1000, n), rng.integers(0, 1000, n)
+        win = StreakWindows(values=values, valid=rng.random((n, wy, wx)) > 0.1, x0=(col - wx // 2).astype(float),
+                            y0=(row - wy // 2).astype(float), noise=rng.uniform(1, 5, n), bg=rng.uniform(90, 110, n))
+        smear = (np.zeros(2), rng.normal(0, 10, 2), rng.normal(0, 10, (n, 2)))[trial % 3]
+        sigma = rng.uniform(0.6, 2.0) if trial % 2 or n == 0 else rng.uniform(0.6, 2.0, n)
+        np.testing.assert_array_equal(start_parameters(win, col, row, sigma, smear),
+                                      _start_parameters_python(win, col, row, sigma, smear), err_msg=str(trial))
+
+
 def test_saturation_test_in_the_pixels_own_type_is_the_float_comparison():
     """``at_or_above`` compares integer frames against ceil(level) in their own type (no
     float64 copy of the frame): the same mask as ``image >= level`` for every integer

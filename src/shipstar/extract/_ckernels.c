@@ -25,6 +25,7 @@
  *   erf_array         erf of an array (libm)
  *   cho_solve         the two triangular substitutions of a Cholesky solve, matrix by matrix
  *   grid_box_z        the mesh's whitened 3 x 3 sums on a regular grid (its box-noise factor)
+ *   streak_start      the streak fits' start parameters (centre of light near the segment, flux)
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -1380,6 +1381,115 @@ static PyObject *py_grid_box_z(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+/* ------------------------------------------------------------------ streak_start */
+
+/* NumPy's pairwise summation of n contiguous doubles (its add.reduce over a contiguous axis,
+ * from 0: blocks of up to 128 in 8 partial sums, longer runs halved at a multiple of 8), so
+ * that sums over a window are NumPy's to the bit. */
+static double pairwise_sum(const double *a, Py_ssize_t n) {
+    if (n < 8) {
+        double res = 0.0;
+        for (Py_ssize_t i = 0; i < n; i++) res += a[i];
+        return res;
+    }
+    if (n <= 128) {
+        double r[8];
+        for (int j = 0; j < 8; j++) r[j] = a[j];
+        Py_ssize_t i;
+        for (i = 8; i < n - (n % 8); i += 8)
+            for (int j = 0; j < 8; j++) r[j] += a[i + j];
+        double res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
+        for (; i < n; i++) res += a[i];
+        return res;
+    }
+    Py_ssize_t n2 = n / 2;
+    n2 -= n2 % 8;
+    return pairwise_sum(a, n2) + pairwise_sum(a + n2, n - n2);
+}
+
+/* np.maximum: NaN from either side */
+static inline double np_maximum(double a, double b) { return (a >= b || isnan(a)) ? a : b; }
+
+static inline double np_clip(double x, double lo, double hi) { return x < lo ? lo : (x > hi ? hi : x); }
+
+/* streak_start(values (N, wy, wx) f8, valid u8, bg, noise, x0, y0, col, row, sigma (N,) f8, d (N, 2) f8,
+ *              p0_out (N, 7) f8, N, wy, wx, reach, along_max, across_max): _streak.start_parameters's
+ * arithmetic star by star (its NumPy reference: _streak._start_parameters_python), the window sums
+ * in NumPy's pairwise order. */
+static PyObject *py_streak_start(PyObject *self, PyObject *args) {
+    Bufs bs = {.n = 0};
+    Py_buffer *vb = &bs.b[0], *kb = &bs.b[1], *bgb = &bs.b[2], *nb_ = &bs.b[3], *x0b = &bs.b[4], *y0b = &bs.b[5],
+              *cb = &bs.b[6], *rb = &bs.b[7], *sb = &bs.b[8], *db = &bs.b[9], *pb = &bs.b[10];
+    Py_ssize_t N, wy, wx;
+    double reach, along_max, across_max;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*y*y*w*nnnddd", vb, kb, bgb, nb_, x0b, y0b, cb, rb, sb, db, pb,
+                          &N, &wy, &wx, &reach, &along_max, &across_max))
+        return NULL;
+    bs.n = 11;
+    Py_ssize_t P = wy * wx;
+    int ok = N >= 0 && wy >= 1 && wx >= 1 && vb->len == (Py_ssize_t)(N * P * sizeof(double)) && kb->len == N * P
+             && pb->len == (Py_ssize_t)(N * 7 * sizeof(double)) && db->len == (Py_ssize_t)(N * 2 * sizeof(double));
+    double *work = ok ? malloc(sizeof(double) * (size_t)(4 * P + 1)) : NULL;
+    if (!ok || work == NULL) {
+        bufs_release(&bs);
+        if (!ok) PyErr_SetString(PyExc_ValueError, "streak_start: bad sizes");
+        else PyErr_NoMemory();
+        return NULL;
+    }
+    const double *values = vb->buf, *bg = bgb->buf, *noise = nb_->buf, *x0 = x0b->buf, *y0 = y0b->buf,
+                 *colf = cb->buf, *rowf = rb->buf, *sigma = sb->buf, *d = db->buf;
+    const uint8_t *valid = kb->buf;
+    double *p0 = pb->buf;
+    double *excess = work, *w = work + P, *wa = work + 2 * P, *wc = work + 3 * P;
+    double reach2 = reach * reach;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t s = 0; s < N; s++) {
+        const double *v = values + s * P;
+        const uint8_t *k = valid + s * P;
+        double dx = d[2 * s], dy = d[2 * s + 1];
+        double length = hypot(dx, dy);
+        double u0 = 1.0, u1 = 0.0;
+        if (length > 1e-9) {
+            double m = np_maximum(length, 1e-9);
+            u0 = dx / m;
+            u1 = dy / m;
+        }
+        double half = 0.5 * length, px = colf[s], py = rowf[s];
+        for (Py_ssize_t i = 0; i < wy; i++) {
+            double ddy = (y0[s] + (double)i) - py;
+            for (Py_ssize_t j = 0; j < wx; j++) {
+                Py_ssize_t q = i * wx + j;
+                double ddx = (x0[s] + (double)j) - px;
+                double along = ddx * u0 + ddy * u1;
+                double across = ddx * u1 - ddy * u0;
+                double e = k[q] ? v[q] - bg[s] : 0.0;
+                double t = np_maximum(fabs(along) - half, 0.0);
+                int near = t * t + across * across <= reach2;
+                double wq = near ? np_maximum(e, 0.0) : 0.0;
+                excess[q] = e;
+                w[q] = wq;
+                wa[q] = wq * along;
+                wc[q] = wq * across;
+            }
+        }
+        double total = np_maximum(pairwise_sum(w, P), 1e-300);
+        double sa = np_clip(pairwise_sum(wa, P) / total, -along_max, along_max);
+        double sc = np_clip(pairwise_sum(wc, P) / total, -across_max, across_max);
+        double *o = p0 + 7 * s;
+        o[0] = (px + sa * u0) + sc * u1;
+        o[1] = (py + sa * u1) + sc * -u0;
+        o[2] = np_maximum(pairwise_sum(excess, P), 10.0 * noise[s]);
+        o[3] = bg[s];
+        o[4] = sigma[s];
+        o[5] = dx;
+        o[6] = dy;
+    }
+    Py_END_ALLOW_THREADS
+    free(work);
+    bufs_release(&bs);
+    Py_RETURN_NONE;
+}
+
 /* ------------------------------------------------------------------ cho_solve */
 
 /* cho_solve(low (N, k, k) f8, y (N, k, m) f8 in place, N, k, m): solve (L L^T) x = y for each
@@ -1447,6 +1557,7 @@ static PyMethodDef methods[] = {
     {"erf_array", py_erf_array, METH_VARARGS, "erf of a float64 array."},
     {"cho_solve", py_cho_solve, METH_VARARGS, "Cholesky substitutions of stacked systems, in place."},
     {"grid_box_z", py_grid_box_z, METH_VARARGS, "Whitened 3 x 3 sums on a regular grid of the mesh."},
+    {"streak_start", py_streak_start, METH_VARARGS, "Start parameters of the streak fits."},
     {NULL, NULL, 0, NULL},
 };
 

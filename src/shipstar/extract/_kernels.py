@@ -363,3 +363,22 @@ def grid_box_z(total, bg, noise, block_px: float, step: int):
     out = np.empty_like(total)
     _ckernels.grid_box_z(total, bg, noise, out, *total.shape, *bg.shape, float(block_px), int(step))
     return out
+
+
+def streak_start(win, col, row, sigma, d, reach: float, along_max: float, across_max: float):
+    """The streak fits' start parameters (N, 7) of ``_streak.start_parameters`` (whose NumPy
+    code, ``_streak._start_parameters_python``, is the reference, bit for bit): windows
+    ``win`` (values, valid, bg, noise, x0, y0), peaks ``col``, ``row`` (N,), PSF sigma (N,),
+    smears ``d`` (N, 2)."""
+    values = _f8(win.values)
+    n_star = len(values)
+    wy, wx = values.shape[1:] if values.ndim == 3 else (0, 0)
+    valid = np.ascontiguousarray(win.valid, dtype=np.bool_).view(np.uint8)
+    per_star = [_f8(np.broadcast_to(a, (n_star,))) for a in (win.bg, win.noise, win.x0, win.y0, col, row, sigma)]
+    d = _f8(np.broadcast_to(d, (n_star, 2)))
+    if values.shape != (n_star, wy, wx) or valid.shape != values.shape:
+        raise ValueError("streak_start: windows of inconsistent shapes")
+    p0 = np.empty((n_star, 7))
+    _ckernels.streak_start(values, valid, *per_star, d, p0, n_star, wy, wx, float(reach), float(along_max),
+                           float(across_max))
+    return p0

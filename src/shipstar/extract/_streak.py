@@ -168,7 +168,17 @@ def start_parameters(win, col, row, sigma, smear):
     (``smear`` (2,) or (N, 2)) through it, by at most ``_START_ALONG_PX`` along the
     streak and ``_START_ACROSS_PX`` across: a bright streak's fit then needs an
     iteration less, and a blended neighbour cannot pull the start over to itself.
+    Compiled (``_kernels.streak_start``): :func:`_start_parameters_python`'s values to the bit.
     """
+    n_star = len(col)
+    d = np.broadcast_to(np.asarray(smear, dtype=float), (n_star, 2))
+    peak = np.stack([col, row], axis=1).astype(float)
+    return _kernels.streak_start(win, peak[:, 0], peak[:, 1], np.broadcast_to(np.asarray(sigma, float), (n_star,)),
+                                 d, 1.5 * float(np.max(sigma)) + 0.5, _START_ALONG_PX, _START_ACROSS_PX)
+
+
+def _start_parameters_python(win, col, row, sigma, smear):
+    """:func:`start_parameters` in NumPy (the compiled kernel's reference)."""
     excess = np.where(win.valid, win.values - win.bg[:, None, None], 0.0)
     n_star = len(col)
     d = np.broadcast_to(np.asarray(smear, dtype=float), (n_star, 2))

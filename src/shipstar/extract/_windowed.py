@@ -290,13 +290,16 @@ def _windows(image, xy_pred_px, mesh, saturation_adu, smear_px, psf_sigma_px, ga
     cols = col[:, None] + np.arange(-hx, hx + 1)
     flat_idx = np.clip(rows, 0, height - 1)[:, :, None] * width + np.clip(cols, 0, width - 1)[:, None, :]
     # (H, W) masks for the fits' windows, written only where the windows are (np.zeros maps
-    # its pages lazily: a copy of a full-frame mask would cost ~0.7 ms here)
-    saturated = np.zeros(arr.shape, dtype=bool)
+    # its pages lazily: a copy of a full-frame mask would cost ~0.7 ms here); no saturated
+    # pixel in the windows: None (the fits then look nothing up in it)
+    saturated = None
     bad = np.zeros(arr.shape, dtype=bool)
     if math.isfinite(saturation_adu):
         at_top = flat_idx[win.valid & (win.values >= saturation_adu)]
-        saturated.reshape(-1)[at_top] = True
-        bad.reshape(-1)[at_top] = True
+        if at_top.size:
+            saturated = np.zeros(arr.shape, dtype=bool)
+            saturated.reshape(-1)[at_top] = True
+            bad.reshape(-1)[at_top] = True
     level = (bg + 3.5 * mesh.box_noise_factor * noise)[:, None, None]
     cand = np.unique(flat_idx[win.valid & (win.values > level)])
     flat = arr.reshape(-1)
