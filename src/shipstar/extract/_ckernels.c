@@ -26,6 +26,8 @@
  *   cho_solve         the two triangular substitutions of a Cholesky solve, matrix by matrix
  *   grid_box_z        the mesh's whitened 3 x 3 sums on a regular grid (its box-noise factor)
  *   streak_start      the streak fits' start parameters (centre of light near the segment, flux)
+ *   window_peaks      windowed tracking: the line filter's maximum near each window's centre
+ *   ring_levels       windowed tracking: the windows' border-ring background levels
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -1490,6 +1492,183 @@ static PyObject *py_streak_start(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+/* ------------------------------------------------------------------ window_peaks */
+
+/* window_peaks(values (N, wy, wx) f8, valid u8, level (N,) f8, taps (T, 2) i8 [ox, oy], best_out (N,) i8,
+ *              s_out (N,) f8, N, wy, wx, T, search, cx, cy): per window, the line filter's sums
+ * S = sum over the taps (in their order, from 0) of the excess ``valid ? value - level : 0`` on the
+ * (2 search + 1)^2 places around (cx, cy), and the first largest: its flat index among the places
+ * and its sum (_windowed._peaks's arithmetic; the caller checks that every tap stays inside). */
+static PyObject *py_window_peaks(PyObject *self, PyObject *args) {
+    Py_buffer vb, kb, lb, tb, bb, sb;
+    Py_ssize_t N, wy, wx, T, search, cx, cy;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*w*w*nnnnnnn", &vb, &kb, &lb, &tb, &bb, &sb, &N, &wy, &wx, &T, &search,
+                          &cx, &cy))
+        return NULL;
+    Py_ssize_t P = wy * wx, side = 2 * search + 1, places = side * side;
+    int ok = N >= 0 && T >= 1 && search >= 0 && vb.len == (Py_ssize_t)(N * P * sizeof(double)) && kb.len == N * P
+             && lb.len == (Py_ssize_t)(N * sizeof(double)) && tb.len == (Py_ssize_t)(T * 2 * sizeof(int64_t))
+             && bb.len == (Py_ssize_t)(N * sizeof(int64_t)) && sb.len == (Py_ssize_t)(N * sizeof(double));
+    const int64_t *taps = tb.buf;
+    for (Py_ssize_t t = 0; ok && t < T; t++) {
+        Py_ssize_t y0 = cy + taps[2 * t + 1] - search, x0 = cx + taps[2 * t] - search;
+        ok = y0 >= 0 && x0 >= 0 && y0 + side <= wy && x0 + side <= wx;
+    }
+    double *acc = ok ? malloc(sizeof(double) * (size_t)places) : NULL;
+    if (acc == NULL) {
+        PyBuffer_Release(&vb); PyBuffer_Release(&kb); PyBuffer_Release(&lb); PyBuffer_Release(&tb);
+        PyBuffer_Release(&bb); PyBuffer_Release(&sb);
+        if (!ok) PyErr_SetString(PyExc_ValueError, "window_peaks: bad sizes or a tap beyond the windows");
+        else PyErr_NoMemory();
+        return NULL;
+    }
+    const double *values = vb.buf, *level = lb.buf;
+    const uint8_t *valid = kb.buf;
+    int64_t *best_out = bb.buf;
+    double *s_out = sb.buf;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t s = 0; s < N; s++) {
+        const double *v = values + s * P;
+        const uint8_t *k = valid + s * P;
+        double b = level[s];
+        for (Py_ssize_t q = 0; q < places; q++) acc[q] = 0.0;
+        for (Py_ssize_t t = 0; t < T; t++) {
+            Py_ssize_t y0 = cy + taps[2 * t + 1] - search, x0 = cx + taps[2 * t] - search;
+            for (Py_ssize_t i = 0; i < side; i++) {
+                const double *vr = v + (y0 + i) * wx + x0;
+                const uint8_t *kr = k + (y0 + i) * wx + x0;
+                double *ar = acc + i * side;
+                for (Py_ssize_t j = 0; j < side; j++) ar[j] += kr[j] ? vr[j] - b : 0.0;
+            }
+        }
+        Py_ssize_t best = 0;
+        for (Py_ssize_t q = 1; q < places; q++)
+            if (acc[q] > acc[best] || (isnan(acc[q]) && !isnan(acc[best]))) best = q;
+        best_out[s] = best;
+        s_out[s] = acc[best];
+    }
+    Py_END_ALLOW_THREADS
+    free(acc);
+    PyBuffer_Release(&vb); PyBuffer_Release(&kb); PyBuffer_Release(&lb); PyBuffer_Release(&tb);
+    PyBuffer_Release(&bb); PyBuffer_Release(&sb);
+    Py_RETURN_NONE;
+}
+
+/* ------------------------------------------------------------------ ring_levels */
+
+/* The k-th smallest of v (n,) (v reordered; Hoare's selection). */
+static double select_kth(double *v, Py_ssize_t n, Py_ssize_t k) {
+    Py_ssize_t lo = 0, hi = n - 1;
+    while (lo < hi) {
+        double pivot = v[lo + (hi - lo) / 2];
+        Py_ssize_t i = lo, j = hi;
+        while (i <= j) {
+            while (v[i] < pivot) i++;
+            while (v[j] > pivot) j--;
+            if (i <= j) {
+                double t = v[i]; v[i] = v[j]; v[j] = t;
+                i++; j--;
+            }
+        }
+        if (k <= j) hi = j;
+        else if (k >= i) lo = i;
+        else break;
+    }
+    return v[k];
+}
+
+/* _background.median of v (n > 0; v reordered): the middle value, or the mean of the two. */
+static double median_of(double *v, Py_ssize_t n) {
+    Py_ssize_t k = n / 2;
+    double hi = select_kth(v, n, k);
+    if (n % 2) return hi;
+    double lo = v[0];                         /* the largest of v[:k], all <= v[k] after the selection */
+    for (Py_ssize_t i = 1; i < k; i++) if (v[i] > lo) lo = v[i];
+    return (lo + hi) / 2.0;
+}
+
+/* ring_levels(values (N, wy, wx) f8, valid u8, bg, noise (N,) f8, own_out (N,) f8, N, wy, wx, r) -> level:
+ * _windowed._ring_shift's arithmetic: each window's border ring of width r (its top r rows, bottom
+ * r rows, then the left and right r columns between them) less the window's mesh background; the
+ * median of the valid ones over all windows; per window the mean of its valid ring pixels within
+ * 3 noise of that median (0 when none), and over all windows their pooled mean (NaN when none);
+ * sums in NumPy's pairwise order. */
+static PyObject *py_ring_levels(PyObject *self, PyObject *args) {
+    Py_buffer vb, kb, bb, nb_, ob;
+    Py_ssize_t N, wy, wx, r;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*w*nnnn", &vb, &kb, &bb, &nb_, &ob, &N, &wy, &wx, &r)) return NULL;
+    Py_ssize_t P = wy * wx, m = 2 * r * wx + 2 * r * (wy - 2 * r);
+    int ok = N >= 0 && r >= 1 && wy > 2 * r && wx > 2 * r && vb.len == (Py_ssize_t)(N * P * sizeof(double))
+             && kb.len == N * P && bb.len == (Py_ssize_t)(N * sizeof(double)) && nb_.len == bb.len
+             && ob.len == bb.len;
+    double *ring = NULL, *pool = NULL, *row = NULL, *totals = NULL;
+    uint8_t *use = NULL;
+    if (ok) {
+        ring = malloc(sizeof(double) * (size_t)(N * m + 1));
+        pool = malloc(sizeof(double) * (size_t)(N * m + 1));
+        row = malloc(sizeof(double) * (size_t)(m + 1));
+        totals = malloc(sizeof(double) * (size_t)(N + 1));
+        use = malloc((size_t)(N * m + 1));
+    }
+    if (!ok || !ring || !pool || !row || !totals || !use) {
+        free(ring); free(pool); free(row); free(totals); free(use);
+        PyBuffer_Release(&vb); PyBuffer_Release(&kb); PyBuffer_Release(&bb); PyBuffer_Release(&nb_);
+        PyBuffer_Release(&ob);
+        if (!ok) PyErr_SetString(PyExc_ValueError, "ring_levels: bad sizes");
+        else PyErr_NoMemory();
+        return NULL;
+    }
+    const double *values = vb.buf, *bg = bb.buf, *noise = nb_.buf;
+    const uint8_t *valid = kb.buf;
+    double *own = ob.buf;
+    double level = NAN;
+    Py_BEGIN_ALLOW_THREADS
+    Py_ssize_t n_pool = 0;
+    for (Py_ssize_t s = 0; s < N; s++) {
+        const double *v = values + s * P;
+        const uint8_t *k = valid + s * P;
+        double *out = ring + s * m;
+        uint8_t *u = use + s * m;
+        Py_ssize_t c = 0;
+        /* top rows, bottom rows, then the left and the right columns of the rows between */
+        Py_ssize_t row0[4] = {0, wy - r, r, r}, row1[4] = {r, wy, wy - r, wy - r};
+        Py_ssize_t col0[4] = {0, 0, 0, wx - r}, col1[4] = {wx, wx, r, wx};
+        for (int part = 0; part < 4; part++)
+            for (Py_ssize_t i = row0[part]; i < row1[part]; i++)
+                for (Py_ssize_t j = col0[part]; j < col1[part]; j++, c++) {
+                    out[c] = v[i * wx + j] - bg[s];
+                    u[c] = k[i * wx + j];
+                    if (u[c]) pool[n_pool++] = out[c];
+                }
+    }
+    if (n_pool > 0) {
+        double centre = median_of(pool, n_pool);
+        Py_ssize_t count_all = 0;
+        for (Py_ssize_t s = 0; s < N; s++) {
+            const double *x = ring + s * m;
+            const uint8_t *u = use + s * m;
+            double lim = 3.0 * noise[s];
+            Py_ssize_t count = 0;
+            for (Py_ssize_t c = 0; c < m; c++) {
+                int in = u[c] && fabs(x[c] - centre) <= lim;
+                row[c] = in ? x[c] : 0.0;
+                count += in;
+            }
+            totals[s] = pairwise_sum(row, m);
+            own[s] = count > 0 ? totals[s] / (double)count : 0.0;
+            count_all += count;
+        }
+        if (count_all) level = pairwise_sum(totals, N) / (double)count_all;
+    } else {
+        for (Py_ssize_t s = 0; s < N; s++) own[s] = 0.0;
+    }
+    Py_END_ALLOW_THREADS
+    free(ring); free(pool); free(row); free(totals); free(use);
+    PyBuffer_Release(&vb); PyBuffer_Release(&kb); PyBuffer_Release(&bb); PyBuffer_Release(&nb_);
+    PyBuffer_Release(&ob);
+    return PyFloat_FromDouble(level);
+}
+
 /* ------------------------------------------------------------------ cho_solve */
 
 /* cho_solve(low (N, k, k) f8, y (N, k, m) f8 in place, N, k, m): solve (L L^T) x = y for each
@@ -1558,6 +1737,8 @@ static PyMethodDef methods[] = {
     {"cho_solve", py_cho_solve, METH_VARARGS, "Cholesky substitutions of stacked systems, in place."},
     {"grid_box_z", py_grid_box_z, METH_VARARGS, "Whitened 3 x 3 sums on a regular grid of the mesh."},
     {"streak_start", py_streak_start, METH_VARARGS, "Start parameters of the streak fits."},
+    {"window_peaks", py_window_peaks, METH_VARARGS, "The line filter's maximum near each window's centre."},
+    {"ring_levels", py_ring_levels, METH_VARARGS, "Background levels of the windows' border rings."},
     {NULL, NULL, 0, NULL},
 };
 

@@ -382,3 +382,36 @@ def streak_start(win, col, row, sigma, d, reach: float, along_max: float, across
     _ckernels.streak_start(values, valid, *per_star, d, p0, n_star, wy, wx, float(reach), float(along_max),
                            float(across_max))
     return p0
+
+
+def window_peaks(values, valid, level, taps, search: int, cx: int, cy: int):
+    """Per window (N, wy, wx): the flat index (N,) int64 among the (2 search + 1)^2 places
+    around pixel (cx, cy) of the first largest line-filter sum, and that sum (N,): the sums
+    over ``taps`` (T, 2) ``(ox, oy)``, in their order, of ``valid ? values - level : 0``
+    (``_windowed._peaks_python``'s values, bit for bit)."""
+    values = _f8(values)
+    n, wy, wx = values.shape
+    valid = np.ascontiguousarray(valid, dtype=np.bool_).view(np.uint8)
+    level = _f8(level).reshape(-1)
+    taps = np.ascontiguousarray(taps, dtype=np.int64).reshape(-1, 2)
+    if valid.shape != values.shape or level.shape != (n,):
+        raise ValueError("window_peaks: arrays of inconsistent shapes")
+    best, s = np.empty(n, dtype=np.int64), np.empty(n)
+    _ckernels.window_peaks(values, valid, level, taps, best, s, n, wy, wx, len(taps), int(search), int(cx), int(cy))
+    return best, s
+
+
+def ring_levels(values, valid, bg, noise, ring_px: int):
+    """``(level, own (N,))``: the border rings (``ring_px`` wide) of the windows ``values``
+    (N, wy, wx) less their background ``bg`` (N,), their valid pixels within 3 ``noise`` (N,)
+    of the median of all of them: pooled mean (NaN: none) and each window's mean (0: none)
+    (``_windowed._ring_shift_python``'s values, bit for bit)."""
+    values = _f8(values)
+    n, wy, wx = values.shape
+    valid = np.ascontiguousarray(valid, dtype=np.bool_).view(np.uint8)
+    bg, noise = _f8(bg).reshape(-1), _f8(noise).reshape(-1)
+    if valid.shape != values.shape or bg.shape != (n,) or noise.shape != (n,):
+        raise ValueError("ring_levels: arrays of inconsistent shapes")
+    own = np.empty(n)
+    level = _ckernels.ring_levels(values, valid, bg, noise, own, n, wy, wx, int(ring_px))
+    return level, own

@@ -48,7 +48,7 @@ import numpy as np
 
 from shipstar.extract._background import median
 from shipstar.extract._core import _prepare, _result, trusted_smear
-from shipstar.extract._kernels import suppress
+from shipstar.extract._kernels import ring_levels, suppress, window_peaks
 from shipstar.extract._matched import LineFilter
 from shipstar.extract._point import SEGMENT_SIGMA, too_sharp
 from shipstar.extract._result import Extraction
@@ -116,7 +116,14 @@ def _ring_shift(win):
     Levels are means of the pixels within 3 noise sigma of the pooled median (a star or a
     hot pixel in a ring left out): with integer data and ~1 ADU of noise a median moves in
     steps of 1/2 ADU, which the line filter's sum of ~15-100 pixels would turn into
-    several of its sigmas."""
+    several of its sigmas.  Compiled (``_kernels.ring_levels``): :func:`_ring_shift_python`'s
+    values to the bit."""
+    level, own = ring_levels(win.values, win.valid, win.bg, win.noise, _RING_PX)
+    return float(level), own
+
+
+def _ring_shift_python(win):
+    """:func:`_ring_shift` in NumPy (the compiled kernel's reference)."""
     r = _RING_PX
     n = len(win.values)
     parts = []
@@ -152,7 +159,23 @@ def _peaks(win, taps, search: int, box_noise_factor: float, local_adu, centre=(0
     """Per window: the line filter's maximum within ``search`` px of the window's centre
     moved by ``centre`` (dx, dy): ``(dx, dy)`` (N,) int offsets from the window's centre and
     its SNR (N,) against white noise; the background is the mesh's plus each window's ring
-    level ``local_adu`` (N,)."""
+    level ``local_adu`` (N,).  Compiled (``_kernels.window_peaks``): :func:`_peaks_python`'s
+    values to the bit."""
+    n, wy, wx = win.values.shape
+    cy, cx = (wy - 1) // 2 + int(centre[1]), (wx - 1) // 2 + int(centre[0])
+    side = 2 * search + 1
+    for ox, oy in taps:
+        y0, x0 = cy + oy - search, cx + ox - search
+        if y0 < 0 or x0 < 0 or y0 + side > wy or x0 + side > wx:
+            raise ValueError("window too small for the line filter's reach")   # (the callers size them)
+    best, s = window_peaks(win.values, win.valid, win.bg + local_adu, taps, search, cx, cy)
+    dy, dx = np.divmod(best, side)
+    noise = win.noise * box_noise_factor * math.sqrt(len(taps))
+    return dx - search + int(centre[0]), dy - search + int(centre[1]), s / noise
+
+
+def _peaks_python(win, taps, search: int, box_noise_factor: float, local_adu, centre=(0, 0)):
+    """:func:`_peaks` in NumPy (the compiled kernel's reference)."""
     excess = np.where(win.valid, win.values - (win.bg + local_adu)[:, None, None], 0.0)
     n, wy, wx = excess.shape
     cy, cx = (wy - 1) // 2 + int(centre[1]), (wx - 1) // 2 + int(centre[0])
