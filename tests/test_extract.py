@@ -1008,6 +1008,38 @@ def test_compiled_streak_start_parameters_are_the_numpy_reference_bit_for_bit():
                                       _start_parameters_python(win, col, row, sigma, smear), err_msg=str(trial))
 
 
+def test_compiled_window_gathers_are_the_numpy_reference():
+    """The fits' windows (``_streak.gather_streak_windows``, ``_fit.gather_windows``), compiled,
+    against the NumPy code they replaced (kept as the reference): the same float64 values and
+    validity for every pixel type, windows over the frame's edges and corners, with and
+    without a mask of bad pixels, and none at all."""
+    from dataclasses import fields
+
+    from shipstar.extract._fit import _gather_windows_python, gather_windows
+    from shipstar.extract._streak import _gather_streak_windows_python, gather_streak_windows
+
+    rng = np.random.default_rng(48)
+    for dtype in (np.uint8, np.int8, np.uint16, np.int16, np.uint32, np.int32, np.int64, np.float32, np.float64):
+        h, w = 37, 53
+        if np.issubdtype(dtype, np.floating):
+            image = rng.normal(0.0, 1e3, (h, w)).astype(dtype)
+        else:
+            info = np.iinfo(dtype)
+            image = rng.integers(max(info.min, -2 ** 60), min(info.max, 2 ** 60), (h, w), endpoint=True).astype(dtype)
+        for n in (0, 1, 25):
+            col, row = rng.integers(-3, w + 3, n), rng.integers(-3, h + 3, n)
+            bg, noise = rng.normal(size=n), rng.uniform(1, 2, n)
+            for bad in (None, rng.random((h, w)) < 0.2):
+                for hx, hy in ((0, 0), (3, 5), (9, 2)):
+                    a = gather_streak_windows(image, col, row, hx, hy, bg, noise, bad)
+                    b = _gather_streak_windows_python(image, col, row, hx, hy, bg, noise, bad)
+                    for f in fields(a):
+                        np.testing.assert_array_equal(getattr(a, f.name), getattr(b, f.name), err_msg=str(dtype))
+            a, b = gather_windows(image, col, row, 4, bg, noise), _gather_windows_python(image, col, row, 4, bg, noise)
+            for f in fields(a):
+                np.testing.assert_array_equal(getattr(a, f.name), getattr(b, f.name), err_msg=f"{dtype} {f.name}")
+
+
 def test_saturation_test_in_the_pixels_own_type_is_the_float_comparison():
     """``at_or_above`` compares integer frames against ceil(level) in their own type (no
     float64 copy of the frame): the same mask as ``image >= level`` for every integer

@@ -28,6 +28,7 @@
  *   streak_start      the streak fits' start parameters (centre of light near the segment, flux)
  *   window_peaks      windowed tracking: the line filter's maximum near each window's centre
  *   ring_levels       windowed tracking: the windows' border-ring background levels
+ *   gather            rectangular pixel windows (as float64) and their validity
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -768,6 +769,74 @@ static int type_index(const char *code) {
     case 8: CALL_U8(f32, float); break;                                                                 \
     default: CALL_U8(f64, double); break;                                                               \
     }
+
+/* gather(image, values_out (N, 2 hy + 1, 2 hx + 1) f8, valid_out u8, col, row (N,) i8, bad (H, W) u8, H, W, N,
+ *        hx, hy, has_bad, type): the windows centred on (col, row), their pixels as float64 (the
+ * nearest pixel of the image where off it), valid where on the image and not ``bad``
+ * (_streak.gather_streak_windows, _fit.gather_windows). */
+#define GATHER(SUF, T)                                                                                  \
+    static void gather_##SUF(const T *img, double *values, uint8_t *valid, const int64_t *col,          \
+                             const int64_t *row, const uint8_t *bad, Py_ssize_t h, Py_ssize_t w,      \
+                             Py_ssize_t n, Py_ssize_t hx, Py_ssize_t hy) {                              \
+        Py_ssize_t wy = 2 * hy + 1, wx = 2 * hx + 1;                                                    \
+        for (Py_ssize_t s = 0; s < n; s++) {                                                            \
+            double *v = values + s * wy * wx;                                                           \
+            uint8_t *k = valid + s * wy * wx;                                                           \
+            for (Py_ssize_t i = 0; i < wy; i++) {                                                       \
+                Py_ssize_t r = row[s] - hy + i;                                                         \
+                int row_in = r >= 0 && r < h;                                                           \
+                Py_ssize_t rc = r < 0 ? 0 : (r >= h ? h - 1 : r);                                       \
+                for (Py_ssize_t j = 0; j < wx; j++) {                                                   \
+                    Py_ssize_t c = col[s] - hx + j;                                                     \
+                    Py_ssize_t cc = c < 0 ? 0 : (c >= w ? w - 1 : c);                                   \
+                    Py_ssize_t q = rc * w + cc;                                                         \
+                    v[i * wx + j] = (double)img[q];                                                     \
+                    k[i * wx + j] = row_in && c >= 0 && c < w && !(bad && bad[q]);                      \
+                }                                                                                       \
+            }                                                                                           \
+        }                                                                                               \
+    }
+GATHER(u8, uint8_t)
+GATHER(i8, int8_t)
+GATHER(u16, uint16_t)
+GATHER(i16, int16_t)
+GATHER(u32, uint32_t)
+GATHER(i32, int32_t)
+GATHER(u64, uint64_t)
+GATHER(i64, int64_t)
+GATHER(f32, float)
+GATHER(f64, double)
+
+static PyObject *py_gather(PyObject *self, PyObject *args) {
+    Py_buffer ib, vb, kb, cb, rb, bb;
+    Py_ssize_t h, w, n, hx, hy;
+    int has_bad;
+    const char *code;
+    if (!PyArg_ParseTuple(args, "y*w*w*y*y*y*nnnnnps", &ib, &vb, &kb, &cb, &rb, &bb, &h, &w, &n, &hx, &hy,
+                          &has_bad, &code))
+        return NULL;
+    int t = type_index(code);
+    Py_ssize_t cells = n * (2 * hy + 1) * (2 * hx + 1);
+    int ok = t >= 0 && h >= 1 && w >= 1 && n >= 0 && hx >= 0 && hy >= 0
+             && vb.len == (Py_ssize_t)(cells * sizeof(double)) && kb.len == cells
+             && cb.len == (Py_ssize_t)(n * sizeof(int64_t)) && rb.len == cb.len && (!has_bad || bb.len == h * w);
+    if (ok) {
+        const uint8_t *bad = has_bad ? (const uint8_t *)bb.buf : NULL;
+        Py_BEGIN_ALLOW_THREADS
+#define CALL(SUF, T) gather_##SUF((const T *)ib.buf, (double *)vb.buf, (uint8_t *)kb.buf, (const int64_t *)cb.buf, \
+                                  (const int64_t *)rb.buf, bad, h, w, n, hx, hy)
+        DISPATCH(t, CALL)
+#undef CALL
+        Py_END_ALLOW_THREADS
+    }
+    PyBuffer_Release(&ib); PyBuffer_Release(&vb); PyBuffer_Release(&kb); PyBuffer_Release(&cb);
+    PyBuffer_Release(&rb); PyBuffer_Release(&bb);
+    if (!ok) {
+        PyErr_SetString(PyExc_ValueError, "gather: bad sizes");
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
 
 /* grid_box_sums(image, out (nr, nc) f8, H, W, step, nr, nc, type): out[i, j] = the 3 x 3 sum
  * around pixel (1 + step i, 1 + step j), in float64 from 0, row by row (dr = -1, 0, 1), each
@@ -1739,6 +1808,7 @@ static PyMethodDef methods[] = {
     {"streak_start", py_streak_start, METH_VARARGS, "Start parameters of the streak fits."},
     {"window_peaks", py_window_peaks, METH_VARARGS, "The line filter's maximum near each window's centre."},
     {"ring_levels", py_ring_levels, METH_VARARGS, "Background levels of the windows' border rings."},
+    {"gather", py_gather, METH_VARARGS, "Rectangular pixel windows as float64 and their validity."},
     {NULL, NULL, 0, NULL},
 };
 

@@ -69,7 +69,16 @@ def window_half_px(sigma_px: float) -> int:
 
 
 def gather_windows(image, col, row, half, bg, noise) -> Windows:
-    """Copy (2 half + 1)^2 windows centred on integer pixels (col, row); off-image pixels invalid."""
+    """Copy (2 half + 1)^2 windows centred on integer pixels (col, row); off-image pixels invalid
+    (compiled, ``_kernels.gather``: :func:`_gather_windows_python`'s windows)."""
+    values, valid = _kernels.gather(image, col, row, int(half), int(half))
+    col, row = np.asarray(col), np.asarray(row)
+    return Windows(values=values, valid=valid, x0=(col - half).astype(float), y0=(row - half).astype(float),
+                   noise=np.asarray(noise, dtype=float), bg=np.asarray(bg, dtype=float))
+
+
+def _gather_windows_python(image, col, row, half, bg, noise) -> Windows:
+    """:func:`gather_windows` in NumPy (the compiled kernel's reference)."""
     height, width = image.shape
     offsets = np.arange(-half, half + 1)
     rows = row[:, None] + offsets

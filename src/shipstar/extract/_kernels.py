@@ -415,3 +415,27 @@ def ring_levels(values, valid, bg, noise, ring_px: int):
     own = np.empty(n)
     level = _ckernels.ring_levels(values, valid, bg, noise, own, n, wy, wx, int(ring_px))
     return level, own
+
+
+def gather(image, col, row, hx: int, hy: int, bad=None):
+    """``(values (N, 2 hy + 1, 2 hx + 1) float64, valid (same) bool)``: the windows of ``image``
+    (H, W) centred on the integer pixels ``col``, ``row`` (N,), off-image pixels the nearest
+    pixel's value and invalid, pixels of ``bad`` ((H, W) bool, optional) invalid."""
+    image, code = _pixels(image)
+    h, w = image.shape
+    col = np.ascontiguousarray(col, dtype=np.int64).reshape(-1)
+    row = np.ascontiguousarray(row, dtype=np.int64).reshape(-1)
+    n = col.size
+    if row.size != n:
+        raise ValueError("gather: col and row of different lengths")
+    if bad is None:
+        bad_u8, has_bad = np.zeros(1, np.uint8), False
+    else:
+        bad_u8 = np.ascontiguousarray(bad, dtype=np.bool_).view(np.uint8)
+        if bad_u8.shape != (h, w):
+            raise ValueError("gather: bad mask of another shape than the image")
+        has_bad = True
+    values = np.empty((n, 2 * hy + 1, 2 * hx + 1))
+    valid = np.empty(values.shape, dtype=np.bool_)
+    _ckernels.gather(image, values, valid.view(np.uint8), col, row, bad_u8, h, w, n, int(hx), int(hy), has_bad, code)
+    return values, valid

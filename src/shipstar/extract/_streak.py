@@ -95,8 +95,17 @@ def gather_streak_windows(image, col, row, hx, hy, bg, noise, bad=None) -> Strea
     """Copy (2 hy + 1, 2 hx + 1) windows centred on integer pixels (col, row).
 
     Off-image pixels and pixels flagged in ``bad`` ((H, W) bool, e.g. saturated or hot)
-    are invalid (zero weight in the fit).
+    are invalid (zero weight in the fit).  Compiled (``_kernels.gather``):
+    :func:`_gather_streak_windows_python`'s windows.
     """
+    values, valid = _kernels.gather(image, col, row, int(hx), int(hy), bad)
+    col, row = np.asarray(col), np.asarray(row)
+    return StreakWindows(values=values, valid=valid, x0=(col - hx).astype(float), y0=(row - hy).astype(float),
+                         noise=np.asarray(noise, dtype=float), bg=np.asarray(bg, dtype=float))
+
+
+def _gather_streak_windows_python(image, col, row, hx, hy, bg, noise, bad=None) -> StreakWindows:
+    """:func:`gather_streak_windows` in NumPy (the compiled kernel's reference)."""
     height, width = image.shape
     rows = row[:, None] + np.arange(-hy, hy + 1)
     cols = col[:, None] + np.arange(-hx, hx + 1)
