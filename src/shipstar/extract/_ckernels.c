@@ -29,6 +29,7 @@
  *   window_peaks      windowed tracking: the line filter's maximum near each window's centre
  *   ring_levels       windowed tracking: the windows' border-ring background levels
  *   gather            rectangular pixel windows (as float64) and their validity
+ *   crowded_count     windowed tracking: bright pixels outside each star's footprint
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -1738,6 +1739,59 @@ static PyObject *py_ring_levels(PyObject *self, PyObject *args) {
     return PyFloat_FromDouble(level);
 }
 
+/* ------------------------------------------------------------------ crowded_count */
+
+/* crowded_count(values (N, wy, wx) f8, valid u8, bg, noise (N,) f8, dx, dy (N,) i8, counts_out (N,) i8,
+ *               N, wy, wx, u0, u1, along_max, across_max, k): per window, the valid pixels brighter
+ * than bg + k noise outside the footprint centred (dx, dy) px from the window's centre: |along| <=
+ * along_max and |across| <= across_max, along = gx u0 + gy u1, across = gx u1 - gy u0 for the
+ * pixel's offset (gx, gy) from that centre (_windowed._crowded's arithmetic). */
+static PyObject *py_crowded_count(PyObject *self, PyObject *args) {
+    Py_buffer vb, kb, bb, nb_, xb, yb, ob;
+    Py_ssize_t N, wy, wx;
+    double u0, u1, along_max, across_max, kf;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*w*nnnddddd", &vb, &kb, &bb, &nb_, &xb, &yb, &ob, &N, &wy, &wx, &u0, &u1,
+                          &along_max, &across_max, &kf))
+        return NULL;
+    Py_ssize_t P = wy * wx;
+    int ok = N >= 0 && vb.len == (Py_ssize_t)(N * P * sizeof(double)) && kb.len == N * P
+             && bb.len == (Py_ssize_t)(N * sizeof(double)) && nb_.len == bb.len
+             && xb.len == (Py_ssize_t)(N * sizeof(int64_t)) && yb.len == xb.len && ob.len == xb.len;
+    if (ok) {
+        const double *values = vb.buf, *bg = bb.buf, *noise = nb_.buf;
+        const uint8_t *valid = kb.buf;
+        const int64_t *dx = xb.buf, *dy = yb.buf;
+        int64_t *counts = ob.buf;
+        Py_ssize_t cy = (wy - 1) / 2, cx = (wx - 1) / 2;
+        Py_BEGIN_ALLOW_THREADS
+        for (Py_ssize_t s = 0; s < N; s++) {
+            const double *v = values + s * P;
+            const uint8_t *k = valid + s * P;
+            double level = bg[s] + kf * noise[s];
+            int64_t c = 0;
+            for (Py_ssize_t i = 0; i < wy; i++) {
+                double gy = (double)(i - cy - dy[s]);
+                for (Py_ssize_t j = 0; j < wx; j++) {
+                    Py_ssize_t q = i * wx + j;
+                    if (!k[q] || !(v[q] > level)) continue;
+                    double gx = (double)(j - cx - dx[s]);
+                    double along = gx * u0 + gy * u1, across = gx * u1 - gy * u0;
+                    if (!(fabs(along) <= along_max && fabs(across) <= across_max)) c++;
+                }
+            }
+            counts[s] = c;
+        }
+        Py_END_ALLOW_THREADS
+    }
+    PyBuffer_Release(&vb); PyBuffer_Release(&kb); PyBuffer_Release(&bb); PyBuffer_Release(&nb_);
+    PyBuffer_Release(&xb); PyBuffer_Release(&yb); PyBuffer_Release(&ob);
+    if (!ok) {
+        PyErr_SetString(PyExc_ValueError, "crowded_count: bad sizes");
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
 /* ------------------------------------------------------------------ cho_solve */
 
 /* cho_solve(low (N, k, k) f8, y (N, k, m) f8 in place, N, k, m): solve (L L^T) x = y for each
@@ -1809,6 +1863,7 @@ static PyMethodDef methods[] = {
     {"window_peaks", py_window_peaks, METH_VARARGS, "The line filter's maximum near each window's centre."},
     {"ring_levels", py_ring_levels, METH_VARARGS, "Background levels of the windows' border rings."},
     {"gather", py_gather, METH_VARARGS, "Rectangular pixel windows as float64 and their validity."},
+    {"crowded_count", py_crowded_count, METH_VARARGS, "Bright pixels outside each window's footprint."},
     {NULL, NULL, 0, NULL},
 };
 

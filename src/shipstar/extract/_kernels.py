@@ -439,3 +439,21 @@ def gather(image, col, row, hx: int, hy: int, bad=None):
     valid = np.empty(values.shape, dtype=np.bool_)
     _ckernels.gather(image, values, valid.view(np.uint8), col, row, bad_u8, h, w, n, int(hx), int(hy), has_bad, code)
     return values, valid
+
+
+def crowded_count(values, valid, bg, noise, dx, dy, u, along_max: float, across_max: float, k: float):
+    """``(N,)`` int64: per window (N, wy, wx), its valid pixels above ``bg + k noise`` outside
+    the footprint (``|along| <= along_max``, ``|across| <= across_max`` along the unit vector
+    ``u``) centred ``dx, dy`` (N,) px from the window's centre (``_windowed._crowded_python``'s
+    pixels)."""
+    values = _f8(values)
+    n, wy, wx = values.shape
+    valid = np.ascontiguousarray(valid, dtype=np.bool_).view(np.uint8)
+    per_star = [_f8(bg).reshape(-1), _f8(noise).reshape(-1)]
+    offsets = [np.ascontiguousarray(a, dtype=np.int64).reshape(-1) for a in (dx, dy)]
+    if valid.shape != values.shape or any(a.shape != (n,) for a in per_star + offsets):
+        raise ValueError("crowded_count: arrays of inconsistent shapes")
+    counts = np.empty(n, dtype=np.int64)
+    _ckernels.crowded_count(values, valid, *per_star, *offsets, counts, n, wy, wx, float(u[0]), float(u[1]),
+                            float(along_max), float(across_max), float(k))
+    return counts

@@ -48,7 +48,7 @@ import numpy as np
 
 from shipstar.extract._background import median
 from shipstar.extract._core import _prepare, _result, trusted_smear
-from shipstar.extract._kernels import ring_levels, suppress, window_peaks
+from shipstar.extract._kernels import crowded_count, ring_levels, suppress, window_peaks
 from shipstar.extract._matched import LineFilter
 from shipstar.extract._point import SEGMENT_SIGMA, too_sharp
 from shipstar.extract._result import Extraction
@@ -213,7 +213,21 @@ def _crowded(win, dx, dy, smear, sigma: float, box_noise_factor: float) -> np.nd
     (centred ``dx, dy`` (N,) px from the window's centre) than noise gives
     (:data:`_CROWDED_PX`, or half the window's width): a trail or another object crosses it.
     Such a star is flagged as a full frame flags a trail's or a blend's (``elongated``), and
-    the caller's trail test (``extract._artifacts.trail_mask``) looks at its whole region."""
+    the caller's trail test (``extract._artifacts.trail_mask``) looks at its whole region.
+    Compiled (``_kernels.crowded_count``): :func:`_crowded_python`'s answer."""
+    n, wy, wx = win.values.shape
+    if n == 0:
+        return np.zeros(0, dtype=bool)
+    length = float(math.hypot(*smear))
+    u = smear / length if length > 1e-9 else np.array([1.0, 0.0])
+    reach = 3.0 * sigma + 1.0
+    counts = crowded_count(win.values, win.valid, win.bg, win.noise, dx, dy, u, 0.5 * length + reach, reach,
+                           3.0 * box_noise_factor)
+    return counts >= max(_CROWDED_PX, 0.5 * wx)
+
+
+def _crowded_python(win, dx, dy, smear, sigma: float, box_noise_factor: float) -> np.ndarray:
+    """:func:`_crowded` in NumPy (the compiled kernel's reference)."""
     n, wy, wx = win.values.shape
     if n == 0:
         return np.zeros(0, dtype=bool)
