@@ -985,6 +985,54 @@ static PyObject *py_neighbours(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+/* box_sums(image, peaks (K,) i8, total_out (K,) f8, count_out (K,) f8, K, H, W, type): the 3 x 3 box of
+ * each peak: its value plus the sum of its neighbours on the image (NumPy's pairwise order over the 8,
+ * off-image ones 0), and 1 + how many are on it (_detect.box_sums, bit for bit). */
+static double pairwise_sum(const double *a, Py_ssize_t n);
+
+static PyObject *py_box_sums(PyObject *self, PyObject *args) {
+    Py_buffer ib, pb, tb, cb;
+    Py_ssize_t k, h, w;
+    const char *code;
+    if (!PyArg_ParseTuple(args, "y*y*w*w*nnns", &ib, &pb, &tb, &cb, &k, &h, &w, &code)) return NULL;
+    int t = type_index(code);
+    int ok = t >= 0 && k >= 0 && pb.len == (Py_ssize_t)(k * sizeof(int64_t))
+             && tb.len == (Py_ssize_t)(k * sizeof(double)) && cb.len == tb.len;
+    double *values = ok ? malloc(sizeof(double) * (size_t)(8 * k + 1)) : NULL;
+    uint8_t *inside = ok ? malloc((size_t)(8 * k + 1)) : NULL;
+    if (!ok || !values || !inside) {
+        free(values); free(inside);
+        PyBuffer_Release(&ib); PyBuffer_Release(&pb); PyBuffer_Release(&tb); PyBuffer_Release(&cb);
+        if (!ok) { if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "box_sums: bad sizes"); }
+        else PyErr_NoMemory();
+        return NULL;
+    }
+    const int64_t *peaks = pb.buf;
+    double *total = tb.buf, *count = cb.buf;
+    Py_BEGIN_ALLOW_THREADS
+#define CALL(SUF, T) neighbours_##SUF((const T *)ib.buf, peaks, values, inside, k, h, w)
+    DISPATCH(t, CALL)
+#undef CALL
+    for (Py_ssize_t i = 0; i < k; i++) {
+        double e[8];
+        int n_in = 0;
+        for (int j = 0; j < 8; j++) {
+            e[j] = inside[8 * i + j] ? values[8 * i + j] : 0.0;
+            n_in += inside[8 * i + j];
+        }
+        double centre;
+#define CENTRE(SUF, T) centre = (double)((const T *)ib.buf)[peaks[i]]
+        DISPATCH(t, CENTRE)
+#undef CENTRE
+        total[i] = centre + (0.0 + pairwise_sum(e, 8));
+        count[i] = 1.0 + (double)n_in;
+    }
+    Py_END_ALLOW_THREADS
+    free(values); free(inside);
+    PyBuffer_Release(&ib); PyBuffer_Release(&pb); PyBuffer_Release(&tb); PyBuffer_Release(&cb);
+    Py_RETURN_NONE;
+}
+
 /* ------------------------------------------------------------------ line filter */
 
 /* tap_sum(src0, src1, src2, terms (T, 2) i8 [source, shift], out, span, T, double?): out[i] = sum over
@@ -1851,6 +1899,7 @@ static PyMethodDef methods[] = {
     {"candidates", py_candidates, METH_VARARGS, "Flat indices of the pixels above their block's level."},
     {"local_max", py_local_max, METH_VARARGS, "Candidates that are the maximum of their 3 x 3 neighbourhood."},
     {"neighbours", py_neighbours, METH_VARARGS, "The 8 neighbours of pixels and whether they are inside."},
+    {"box_sums", py_box_sums, METH_VARARGS, "3 x 3 box sums and counts around pixels."},
     {"tap_sum", py_tap_sum, METH_VARARGS, "The line filter's shifted sums, tile by tile."},
     {"line_filter", py_line_filter, METH_VARARGS, "The whole line filter, row by row."},
     {"box3", py_box3, METH_VARARGS, "3 x 3 mean of a float32 image, edges extended."},

@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 
+from shipstar.extract._kernels import box_sums as kernel_box_sums
 from shipstar.extract._kernels import candidates, label_runs, local_max, neighbours
 
 __all__ = ["candidate_pixels", "local_maxima", "box_sums", "neighbour_values", "EDGE_NEIGHBOURS", "components",
@@ -98,7 +99,13 @@ EDGE_NEIGHBOURS = [k for k, (dr, dc) in enumerate(_OFFSETS_RC) if abs(dr) + abs(
 
 
 def box_sums(flat, peaks, shape_hw):
-    """Sum and count of the inside pixels of the 3x3 box around each peak."""
+    """Sum and count of the inside pixels of the 3x3 box around each peak (compiled:
+    :func:`_box_sums_python`'s values to the bit)."""
+    return kernel_box_sums(flat.reshape(shape_hw), peaks)
+
+
+def _box_sums_python(flat, peaks, shape_hw):
+    """:func:`box_sums` in NumPy (the compiled kernel's reference)."""
     values, inside = neighbour_values(flat, peaks, shape_hw)
     total = flat[peaks].astype(float) + np.sum(np.where(inside, values, 0.0), axis=1)
     return total, 1.0 + inside.sum(axis=1)

@@ -457,3 +457,13 @@ def crowded_count(values, valid, bg, noise, dx, dy, u, along_max: float, across_
     _ckernels.crowded_count(values, valid, *per_star, *offsets, counts, n, wy, wx, float(u[0]), float(u[1]),
                             float(along_max), float(across_max), float(k))
     return counts
+
+
+def box_sums(image, peaks):
+    """``(total (N,), count (N,))`` float64: each pixel ``peaks`` (flat) plus its 8 neighbours on
+    the image (``_detect._box_sums_python``'s sums, bit for bit), and 1 + how many those are."""
+    image, code = _pixels(image)
+    peaks = _flat_indices(peaks, image.size)
+    total, count = np.empty(peaks.size), np.empty(peaks.size)
+    _ckernels.box_sums(image, peaks, total, count, peaks.size, *image.shape, code)
+    return total, count
