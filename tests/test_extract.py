@@ -1062,6 +1062,24 @@ def test_compiled_box_sums_are_the_numpy_reference_bit_for_bit():
             np.testing.assert_array_equal(got, want, err_msg=str(dtype))
 
 
+def test_compiled_point_start_values_are_the_numpy_reference_bit_for_bit():
+    """The point fits' start values (``_fit.start_values``), compiled, against the NumPy code
+    they replaced (kept as the reference): the same float64 values for windows of every size
+    the fits use, values and backgrounds over 6 decades, masked pixels, no window."""
+    from shipstar.extract._fit import Windows, _start_values_python, start_values
+
+    rng = np.random.default_rng(51)
+    for trial in range(150):
+        n, size = int(rng.integers(0, 30)), int(rng.choice([3, 5, 7, 9, 13, 17]))
+        values = rng.normal(100.0, 5.0, (n, size, size)) * 10.0 ** rng.uniform(-3, 3, (n, 1, 1))
+        values[:, size // 2, size // 2] += rng.uniform(0, 1e4, n)
+        win = Windows(values=values, valid=rng.random((n, size, size)) > 0.1,
+                      x0=rng.integers(-5, 900, n).astype(float), y0=rng.integers(-5, 900, n).astype(float),
+                      noise=rng.uniform(1, 3, n), bg=rng.uniform(90, 110, n) * 10.0 ** rng.uniform(-3, 3, n))
+        sigma = float(rng.uniform(0.5, 2.0))
+        np.testing.assert_array_equal(start_values(win, sigma), _start_values_python(win, sigma), err_msg=str(trial))
+
+
 def test_saturation_test_in_the_pixels_own_type_is_the_float_comparison():
     """``at_or_above`` compares integer frames against ceil(level) in their own type (no
     float64 copy of the frame): the same mask as ``image >= level`` for every integer

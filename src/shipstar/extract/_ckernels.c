@@ -30,6 +30,7 @@
  *   ring_levels       windowed tracking: the windows' border-ring background levels
  *   gather            rectangular pixel windows (as float64) and their validity
  *   crowded_count     windowed tracking: bright pixels outside each star's footprint
+ *   point_start       the point fits' start values (centre of light of the central 3 x 3, flux)
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -1840,6 +1841,68 @@ static PyObject *py_crowded_count(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+/* ------------------------------------------------------------------ point_start */
+
+/* point_start(values (N, S, S) f8, valid u8, bg, x0, y0 (N,) f8, p_out (N, 5) f8, N, S, sigma): the
+ * point fits' start values (_fit._start_values_python's arithmetic, its sums in NumPy's order):
+ * the background-subtracted centre of gravity of the central 3 x 3 (its negative excess 0) and the
+ * window's excess flux (at least the 3 x 3's), the background, sigma. */
+static PyObject *py_point_start(PyObject *self, PyObject *args) {
+    Py_buffer vb, kb, bb, xb, yb, pb;
+    Py_ssize_t N, S;
+    double sigma;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*w*nnd", &vb, &kb, &bb, &xb, &yb, &pb, &N, &S, &sigma)) return NULL;
+    Py_ssize_t P = S * S;
+    int ok = N >= 0 && S >= 3 && vb.len == (Py_ssize_t)(N * P * sizeof(double)) && kb.len == N * P
+             && bb.len == (Py_ssize_t)(N * sizeof(double)) && xb.len == bb.len && yb.len == bb.len
+             && pb.len == (Py_ssize_t)(N * 5 * sizeof(double));
+    double *excess = ok ? malloc(sizeof(double) * (size_t)(P + 1)) : NULL;
+    if (!ok || !excess) {
+        PyBuffer_Release(&vb); PyBuffer_Release(&kb); PyBuffer_Release(&bb); PyBuffer_Release(&xb);
+        PyBuffer_Release(&yb); PyBuffer_Release(&pb);
+        if (!ok) PyErr_SetString(PyExc_ValueError, "point_start: bad sizes");
+        else PyErr_NoMemory();
+        return NULL;
+    }
+    const double *values = vb.buf, *bg = bb.buf, *x0 = xb.buf, *y0 = yb.buf;
+    const uint8_t *valid = kb.buf;
+    double *p = pb.buf;
+    Py_ssize_t half = S / 2;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t s = 0; s < N; s++) {
+        const double *v = values + s * P;
+        const uint8_t *k = valid + s * P;
+        for (Py_ssize_t q = 0; q < P; q++) excess[q] = k[q] ? v[q] - bg[s] : 0.0;
+        double core[9];
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++) core[3 * i + j] = np_maximum(excess[(half - 1 + i) * S + half - 1 + j], 0.0);
+        double total = 0.0 + pairwise_sum(core, 9);
+        double safe = total > 0 ? total : 1.0;
+        double dx = 0.0, dy = 0.0;
+        if (total > 0) {
+            double col_sum[3], row_sum[3];
+            for (int j = 0; j < 3; j++) col_sum[j] = ((0.0 + core[j]) + core[3 + j]) + core[6 + j];
+            for (int i = 0; i < 3; i++) row_sum[i] = ((0.0 + core[3 * i]) + core[3 * i + 1]) + core[3 * i + 2];
+            dx = ((0.0 + col_sum[0] * -1.0) + col_sum[1] * 0.0) + col_sum[2] * 1.0;
+            dy = ((0.0 + row_sum[0] * -1.0) + row_sum[1] * 0.0) + row_sum[2] * 1.0;
+            dx /= safe;
+            dy /= safe;
+        }
+        double flux = np_maximum(0.0 + pairwise_sum(excess, P), total);
+        double *o = p + 5 * s;
+        o[0] = (x0[s] + (double)half) + dx;
+        o[1] = (y0[s] + (double)half) + dy;
+        o[2] = np_maximum(flux, 1e-9);
+        o[3] = bg[s];
+        o[4] = sigma;
+    }
+    Py_END_ALLOW_THREADS
+    free(excess);
+    PyBuffer_Release(&vb); PyBuffer_Release(&kb); PyBuffer_Release(&bb); PyBuffer_Release(&xb);
+    PyBuffer_Release(&yb); PyBuffer_Release(&pb);
+    Py_RETURN_NONE;
+}
+
 /* ------------------------------------------------------------------ cho_solve */
 
 /* cho_solve(low (N, k, k) f8, y (N, k, m) f8 in place, N, k, m): solve (L L^T) x = y for each
@@ -1913,6 +1976,7 @@ static PyMethodDef methods[] = {
     {"ring_levels", py_ring_levels, METH_VARARGS, "Background levels of the windows' border rings."},
     {"gather", py_gather, METH_VARARGS, "Rectangular pixel windows as float64 and their validity."},
     {"crowded_count", py_crowded_count, METH_VARARGS, "Bright pixels outside each window's footprint."},
+    {"point_start", py_point_start, METH_VARARGS, "Start values of the point fits."},
     {NULL, NULL, 0, NULL},
 };
 

@@ -228,7 +228,13 @@ def fit_gaussian(win, p0, *, fit_sigma=False, inv_gain=0.0, tol_px=_CONVERGED_PX
 
 
 def start_values(win, sigma_px):
-    """Background-subtracted centre of gravity of the central 3x3 and window flux: (N, 5)."""
+    """Background-subtracted centre of gravity of the central 3x3 and window flux: (N, 5)
+    (compiled, ``_kernels.point_start``: :func:`_start_values_python`'s values to the bit)."""
+    return _kernels.point_start(win, sigma_px)
+
+
+def _start_values_python(win, sigma_px):
+    """:func:`start_values` in NumPy (the compiled kernel's reference)."""
     half = win.size // 2
     excess = np.where(win.valid, win.values - win.bg[:, None, None], 0.0)
     core = np.maximum(excess[:, half - 1:half + 2, half - 1:half + 2], 0.0)

@@ -467,3 +467,18 @@ def box_sums(image, peaks):
     total, count = np.empty(peaks.size), np.empty(peaks.size)
     _ckernels.box_sums(image, peaks, total, count, peaks.size, *image.shape, code)
     return total, count
+
+
+def point_start(win, sigma_px: float):
+    """The point fits' start values (N, 5) ``(x, y, F, b, sigma)`` of windows ``win`` (values,
+    valid (N, S, S), bg, x0, y0) (``_fit._start_values_python``'s values, bit for bit)."""
+    values = _f8(win.values)
+    n = len(values)
+    size = values.shape[-1] if values.ndim == 3 else 0
+    valid = np.ascontiguousarray(win.valid, dtype=np.bool_).view(np.uint8)
+    per_star = [_f8(a).reshape(-1) for a in (win.bg, win.x0, win.y0)]
+    if values.shape != (n, size, size) or valid.shape != values.shape or any(a.shape != (n,) for a in per_star):
+        raise ValueError("point_start: windows of inconsistent shapes")
+    p = np.empty((n, 5))
+    _ckernels.point_start(values, valid, *per_star, p, n, size, float(sigma_px))
+    return p
