@@ -1080,6 +1080,33 @@ def test_compiled_point_start_values_are_the_numpy_reference_bit_for_bit():
         np.testing.assert_array_equal(start_values(win, sigma), _start_values_python(win, sigma), err_msg=str(trial))
 
 
+def test_compiled_sharpness_test_is_the_numpy_reference():
+    """The hot-pixel and cosmic-ray test (``_point.too_sharp``), compiled, against the NumPy code
+    it replaced (kept as the reference): the same answer for single hot pixels, stars (3 x 3
+    blobs), noise peaks, peaks on the frame's edges and corners, saturated peaks (never sharp),
+    with and without shot noise, on integer and float frames."""
+    from shipstar.extract._background import estimate_mesh
+    from shipstar.extract._point import _too_sharp_python, too_sharp
+
+    rng = np.random.default_rng(52)
+    for trial in range(80):
+        dtype = (np.uint16, np.float32, np.float64, np.int32)[trial % 4]
+        image = rng.normal(100.0, 5.0, (60, 80))
+        hot = rng.integers(0, image.size, 60)
+        image.reshape(-1)[hot] += rng.uniform(0, 3000, 60)
+        for q in hot[:20]:                                            # a third of them stars
+            r, c = divmod(int(q), 80)
+            image[max(r - 1, 0):r + 2, max(c - 1, 0):c + 2] += rng.uniform(0, 800)
+        image = image.astype(dtype) if np.dtype(dtype).kind == "f" else np.round(image).astype(dtype)
+        mesh = estimate_mesh(image, quantum_adu=0.0 if np.dtype(dtype).kind == "f" else 1.0)
+        peaks = np.concatenate([hot, rng.integers(0, image.size, 40), [0, 79, image.size - 1, image.size - 80]])
+        saturated = rng.random(len(peaks)) < 0.1
+        sigma, inv_gain = float(rng.uniform(0.6, 1.6)), float(rng.choice([0.0, 0.3]))
+        np.testing.assert_array_equal(too_sharp(image, mesh, peaks, sigma, inv_gain, saturated),
+                                      _too_sharp_python(image, mesh, peaks, sigma, inv_gain, saturated),
+                                      err_msg=str(trial))
+
+
 def test_saturation_test_in_the_pixels_own_type_is_the_float_comparison():
     """``at_or_above`` compares integer frames against ceil(level) in their own type (no
     float64 copy of the frame): the same mask as ``image >= level`` for every integer

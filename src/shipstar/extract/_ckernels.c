@@ -31,6 +31,7 @@
  *   gather            rectangular pixel windows (as float64) and their validity
  *   crowded_count     windowed tracking: bright pixels outside each star's footprint
  *   point_start       the point fits' start values (centre of light of the central 3 x 3, flux)
+ *   too_sharp         hot pixels and cosmic rays: peaks sharper than the PSF allows
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -532,6 +533,35 @@ static PyObject *py_gauss_normal(PyObject *self, PyObject *args) {
 
 /* ------------------------------------------------------------------ background mesh */
 
+/* NumPy's pairwise summation of n contiguous doubles (its add.reduce over a contiguous axis,
+ * from 0: blocks of up to 128 in 8 partial sums, longer runs halved at a multiple of 8), so
+ * that sums over a window are NumPy's to the bit. */
+static double pairwise_sum(const double *a, Py_ssize_t n) {
+    if (n < 8) {
+        double res = 0.0;
+        for (Py_ssize_t i = 0; i < n; i++) res += a[i];
+        return res;
+    }
+    if (n <= 128) {
+        double r[8];
+        for (int j = 0; j < 8; j++) r[j] = a[j];
+        Py_ssize_t i;
+        for (i = 8; i < n - (n % 8); i += 8)
+            for (int j = 0; j < 8; j++) r[j] += a[i + j];
+        double res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
+        for (; i < n; i++) res += a[i];
+        return res;
+    }
+    Py_ssize_t n2 = n / 2;
+    n2 -= n2 % 8;
+    return pairwise_sum(a, n2) + pairwise_sum(a + n2, n - n2);
+}
+
+/* np.maximum: NaN from either side */
+static inline double np_maximum(double a, double b) { return (a >= b || isnan(a)) ? a : b; }
+
+static inline double np_clip(double x, double lo, double hi) { return x < lo ? lo : (x > hi ? hi : x); }
+
 static void sort_doubles(double *v, int n) {        /* insertion sort: 9 values */
     for (int i = 1; i < n; i++) {
         double x = v[i];
@@ -989,8 +1019,6 @@ static PyObject *py_neighbours(PyObject *self, PyObject *args) {
 /* box_sums(image, peaks (K,) i8, total_out (K,) f8, count_out (K,) f8, K, H, W, type): the 3 x 3 box of
  * each peak: its value plus the sum of its neighbours on the image (NumPy's pairwise order over the 8,
  * off-image ones 0), and 1 + how many are on it (_detect.box_sums, bit for bit). */
-static double pairwise_sum(const double *a, Py_ssize_t n);
-
 static PyObject *py_box_sums(PyObject *self, PyObject *args) {
     Py_buffer ib, pb, tb, cb;
     Py_ssize_t k, h, w;
@@ -1031,6 +1059,72 @@ static PyObject *py_box_sums(PyObject *self, PyObject *args) {
     Py_END_ALLOW_THREADS
     free(values); free(inside);
     PyBuffer_Release(&ib); PyBuffer_Release(&pb); PyBuffer_Release(&tb); PyBuffer_Release(&cb);
+    Py_RETURN_NONE;
+}
+
+/* too_sharp(image, peaks (K,) i8, bg, noise (K,) f8, saturated (K,) u8, out (K,) u8, K, H, W, inv_gain,
+ *           ratio_total, ratio_total2, ratio_edges, ratio_edges2, n_sigma, type): _point.too_sharp's
+ * two one-sided tests of each peak against its neighbours (the 8 neighbours' excess, summed in
+ * NumPy's pairwise order, and the two faintest edge neighbours'), ``noise`` already times the
+ * box-noise factor, the ratios squared by the caller (Python's ``**``), a saturated peak never. */
+static PyObject *py_too_sharp(PyObject *self, PyObject *args) {
+    Py_buffer ib, pb, bb, nb_, sb, ob;
+    Py_ssize_t k, h, w;
+    double inv_gain, rt, rt2, re, re2, n_sigma;
+    const char *code;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*w*nnndddddds", &ib, &pb, &bb, &nb_, &sb, &ob, &k, &h, &w, &inv_gain,
+                          &rt, &rt2, &re, &re2, &n_sigma, &code))
+        return NULL;
+    int t = type_index(code);
+    int ok = t >= 0 && k >= 0 && pb.len == (Py_ssize_t)(k * sizeof(int64_t))
+             && bb.len == (Py_ssize_t)(k * sizeof(double)) && nb_.len == bb.len && sb.len == k && ob.len == k;
+    double *values = ok ? malloc(sizeof(double) * (size_t)(8 * k + 1)) : NULL;
+    uint8_t *inside = ok ? malloc((size_t)(8 * k + 1)) : NULL;
+    if (!ok || !values || !inside) {
+        free(values); free(inside);
+        PyBuffer_Release(&ib); PyBuffer_Release(&pb); PyBuffer_Release(&bb); PyBuffer_Release(&nb_);
+        PyBuffer_Release(&sb); PyBuffer_Release(&ob);
+        if (!ok) { if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "too_sharp: bad sizes"); }
+        else PyErr_NoMemory();
+        return NULL;
+    }
+    const int64_t *peaks = pb.buf;
+    const double *bg = bb.buf, *noise = nb_.buf;
+    const uint8_t *saturated = sb.buf;
+    uint8_t *out = ob.buf;
+    static const int edge[4] = {1, 3, 4, 6};          /* (-1, 0), (0, -1), (0, 1), (1, 0) */
+    Py_BEGIN_ALLOW_THREADS
+#define CALL(SUF, T) neighbours_##SUF((const T *)ib.buf, peaks, values, inside, k, h, w)
+    DISPATCH(t, CALL)
+#undef CALL
+    for (Py_ssize_t i = 0; i < k; i++) {
+        double centre;
+#define CENTRE(SUF, T) centre = (double)((const T *)ib.buf)[peaks[i]]
+        DISPATCH(t, CENTRE)
+#undef CENTRE
+        double peak = centre - bg[i], nz = noise[i], nz2 = nz * nz;
+        double excess[8];
+        int n_in = 0;
+        for (int j = 0; j < 8; j++) {
+            excess[j] = inside[8 * i + j] ? values[8 * i + j] - bg[i] : 0.0;
+            n_in += inside[8 * i + j];
+        }
+        double e[4];                                   /* the edge neighbours, INFINITY off the image */
+        for (int j = 0; j < 4; j++) e[j] = inside[8 * i + edge[j]] ? excess[edge[j]] : INFINITY;
+        sort_doubles(e, 4);
+        double e0 = isfinite(e[0]) ? e[0] : 0.0, e1 = isfinite(e[1]) ? e[1] : 0.0;
+        double var_peak = nz2 + np_maximum(peak, 0.0) * inv_gain;
+        double part_total = 0.0 + pairwise_sum(excess, 8), part_edges = (0.0 + e0) + e1;
+        double var_total = rt2 * var_peak + (double)n_in * nz2 + np_maximum(part_total, 0.0) * inv_gain;
+        double var_edges = re2 * var_peak + 2.0 * nz2 + np_maximum(part_edges, 0.0) * inv_gain;
+        int sharp = (rt * peak - part_total > n_sigma * sqrt(var_total))
+                    | (re * peak - part_edges > n_sigma * sqrt(var_edges));
+        out[i] = (uint8_t)(sharp && !saturated[i]);
+    }
+    Py_END_ALLOW_THREADS
+    free(values); free(inside);
+    PyBuffer_Release(&ib); PyBuffer_Release(&pb); PyBuffer_Release(&bb); PyBuffer_Release(&nb_);
+    PyBuffer_Release(&sb); PyBuffer_Release(&ob);
     Py_RETURN_NONE;
 }
 
@@ -1504,34 +1598,6 @@ static PyObject *py_grid_box_z(PyObject *self, PyObject *args) {
 
 /* ------------------------------------------------------------------ streak_start */
 
-/* NumPy's pairwise summation of n contiguous doubles (its add.reduce over a contiguous axis,
- * from 0: blocks of up to 128 in 8 partial sums, longer runs halved at a multiple of 8), so
- * that sums over a window are NumPy's to the bit. */
-static double pairwise_sum(const double *a, Py_ssize_t n) {
-    if (n < 8) {
-        double res = 0.0;
-        for (Py_ssize_t i = 0; i < n; i++) res += a[i];
-        return res;
-    }
-    if (n <= 128) {
-        double r[8];
-        for (int j = 0; j < 8; j++) r[j] = a[j];
-        Py_ssize_t i;
-        for (i = 8; i < n - (n % 8); i += 8)
-            for (int j = 0; j < 8; j++) r[j] += a[i + j];
-        double res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
-        for (; i < n; i++) res += a[i];
-        return res;
-    }
-    Py_ssize_t n2 = n / 2;
-    n2 -= n2 % 8;
-    return pairwise_sum(a, n2) + pairwise_sum(a + n2, n - n2);
-}
-
-/* np.maximum: NaN from either side */
-static inline double np_maximum(double a, double b) { return (a >= b || isnan(a)) ? a : b; }
-
-static inline double np_clip(double x, double lo, double hi) { return x < lo ? lo : (x > hi ? hi : x); }
 
 /* streak_start(values (N, wy, wx) f8, valid u8, bg, noise, x0, y0, col, row, sigma (N,) f8, d (N, 2) f8,
  *              p0_out (N, 7) f8, N, wy, wx, reach, along_max, across_max): _streak.start_parameters's
@@ -1977,6 +2043,7 @@ static PyMethodDef methods[] = {
     {"gather", py_gather, METH_VARARGS, "Rectangular pixel windows as float64 and their validity."},
     {"crowded_count", py_crowded_count, METH_VARARGS, "Bright pixels outside each window's footprint."},
     {"point_start", py_point_start, METH_VARARGS, "Start values of the point fits."},
+    {"too_sharp", py_too_sharp, METH_VARARGS, "Peaks sharper than the PSF allows."},
     {NULL, NULL, 0, NULL},
 };
 

@@ -482,3 +482,22 @@ def point_start(win, sigma_px: float):
     p = np.empty((n, 5))
     _ckernels.point_start(values, valid, *per_star, p, n, size, float(sigma_px))
     return p
+
+
+def too_sharp(image, peaks, bg, noise, saturated, inv_gain: float, ratio_total: float, ratio_edges: float,
+              n_sigma: float):
+    """``(N,)`` bool: the peaks (flat) sharper than a PSF whose neighbour ratios are
+    ``ratio_total`` / ``ratio_edges`` allows, by ``n_sigma`` (``noise`` (N,) the per-pixel noise
+    times the box-noise factor; ``_point._too_sharp_python``'s answer)."""
+    image, code = _pixels(image)
+    peaks = _flat_indices(peaks, image.size)
+    k = peaks.size
+    bg, noise = _f8(bg).reshape(-1), _f8(noise).reshape(-1)
+    sat = np.ascontiguousarray(saturated, dtype=np.bool_).reshape(-1).view(np.uint8)
+    if bg.shape != (k,) or noise.shape != (k,) or sat.shape != (k,):
+        raise ValueError("too_sharp: arrays of inconsistent lengths")
+    out = np.empty(k, dtype=np.bool_)
+    _ckernels.too_sharp(image, peaks, bg, noise, sat, out.view(np.uint8), k, *image.shape, float(inv_gain),
+                        float(ratio_total), float(ratio_total) ** 2, float(ratio_edges), float(ratio_edges) ** 2,
+                        float(n_sigma), code)
+    return out

@@ -35,6 +35,7 @@ from shipstar.extract._fit import (
     start_values,
     window_half_px,
 )
+from shipstar.extract._kernels import too_sharp as kernel_too_sharp
 from shipstar.extract._result import FLAG_EDGE, FLAG_ELONGATED, FLAG_FIT_FAILED, FLAG_SATURATED
 
 __all__ = ["SEGMENT_SIGMA", "SHARPEST_PSF_SIGMA_PX", "detect_objects", "component_stats", "bright_objects",
@@ -132,8 +133,18 @@ def too_sharp(arr, mesh, peaks, sigma, inv_gain, saturated):
     Two one-sided tests (``SHARPNESS_SIGMA``) against :func:`neighbour_ratios` of a PSF
     ``SHARPNESS_MARGIN`` times narrower than the frame's (PSF changes over the field,
     error of the fitted sigma): the 8 neighbours' total, and the two faintest edge
-    neighbours (a cosmic-ray line of 2-3 pixels leaves them empty).
+    neighbours (a cosmic-ray line of 2-3 pixels leaves them empty).  Compiled
+    (``_kernels.too_sharp``): :func:`_too_sharp_python`'s answer.
     """
+    row, col = np.divmod(np.asarray(peaks, dtype=np.int64), arr.shape[1])
+    bg, noise = mesh.at(col, row)
+    ratio_total, ratio_edges = neighbour_ratios(SHARPNESS_MARGIN * sigma)
+    return kernel_too_sharp(arr, peaks, bg, noise * mesh.box_noise_factor, saturated, inv_gain, ratio_total,
+                            ratio_edges, SHARPNESS_SIGMA)
+
+
+def _too_sharp_python(arr, mesh, peaks, sigma, inv_gain, saturated):
+    """:func:`too_sharp` in NumPy (the compiled kernel's reference)."""
     flat = arr.reshape(-1)
     values, inside = neighbour_values(flat, peaks, arr.shape)
     row, col = np.divmod(peaks, arr.shape[1])
