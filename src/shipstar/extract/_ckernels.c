@@ -32,6 +32,7 @@
  *   crowded_count     windowed tracking: bright pixels outside each star's footprint
  *   point_start       the point fits' start values (centre of light of the central 3 x 3, flux)
  *   too_sharp         hot pixels and cosmic rays: peaks sharper than the PSF allows
+ *   component_stats   per star: pixels, peak, flags, thresholded centre of gravity and moments
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -1128,6 +1129,101 @@ static PyObject *py_too_sharp(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+/* component_stats(image, pix (M,) i8, who (M,) i8, bg (M,) f8, npix_out (n,) i8, peak_out, flux_out, cx_out,
+ *                 cy_out, mxx_out, myy_out, mxy_out (n,) f8, flags_out (n,) i8, M, n, H, W, saturation,
+ *                 elongation2, flag_sat, flag_edge, flag_elong, type): _point.component_stats's
+ * per-star sums over its pixels (weights max(value - bg, 1e-12)), each added in the pixels'
+ * order from 0 as np.bincount adds them. */
+static PyObject *py_component_stats(PyObject *self, PyObject *args) {
+    Bufs bs = {.n = 0};
+    Py_buffer *ib = &bs.b[0], *pb = &bs.b[1], *wb = &bs.b[2], *bb = &bs.b[3], *o_npix = &bs.b[4], *o_peak = &bs.b[5],
+              *o_flux = &bs.b[6], *o_cx = &bs.b[7], *o_cy = &bs.b[8], *o_xx = &bs.b[9], *o_yy = &bs.b[10],
+              *o_xy = &bs.b[11], *o_flags = &bs.b[12];
+    Py_ssize_t M, n, h, w;
+    double saturation, elong2;
+    long long f_sat, f_edge, f_elong;
+    const char *code;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*w*w*w*w*w*w*w*w*w*nnnnddLLLs", ib, pb, wb, bb, o_npix, o_peak, o_flux, o_cx,
+                          o_cy, o_xx, o_yy, o_xy, o_flags, &M, &n, &h, &w, &saturation, &elong2, &f_sat, &f_edge,
+                          &f_elong, &code))
+        return NULL;
+    bs.n = 13;
+    int t = type_index(code);
+    size_t dn = (size_t)n * sizeof(double);
+    int ok = t >= 0 && M >= 0 && n >= 0 && pb->len == (Py_ssize_t)(M * sizeof(int64_t)) && wb->len == pb->len
+             && bb->len == (Py_ssize_t)(M * sizeof(double)) && o_npix->len == (Py_ssize_t)(n * sizeof(int64_t))
+             && o_flags->len == o_npix->len && o_peak->len == (Py_ssize_t)dn && o_flux->len == (Py_ssize_t)dn
+             && o_cx->len == (Py_ssize_t)dn && o_cy->len == (Py_ssize_t)dn && o_xx->len == (Py_ssize_t)dn
+             && o_yy->len == (Py_ssize_t)dn && o_xy->len == (Py_ssize_t)dn;
+    const int64_t *who = wb->buf;
+    for (Py_ssize_t i = 0; ok && i < M; i++) ok = who[i] >= 0 && who[i] < n;
+    double *val = ok ? malloc(sizeof(double) * (size_t)(M + 1)) : NULL;
+    double *wt = ok ? malloc(sizeof(double) * (size_t)(M + 1)) : NULL;
+    double *s1 = ok ? malloc(dn + 8) : NULL, *s2 = ok ? malloc(dn + 8) : NULL;
+    uint8_t *sat = ok ? calloc((size_t)n + 1, 1) : NULL, *edge = ok ? calloc((size_t)n + 1, 1) : NULL;
+    if (!ok || !val || !wt || !s1 || !s2 || !sat || !edge) {
+        free(val); free(wt); free(s1); free(s2); free(sat); free(edge);
+        bufs_release(&bs);
+        if (!ok) { if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "component_stats: bad sizes"); }
+        else PyErr_NoMemory();
+        return NULL;
+    }
+    const int64_t *pix = pb->buf;
+    const double *bg = bb->buf;
+    int64_t *npix = o_npix->buf, *flags = o_flags->buf;
+    double *peak = o_peak->buf, *s0 = o_flux->buf, *cx = o_cx->buf, *cy = o_cy->buf, *mxx = o_xx->buf,
+           *myy = o_yy->buf, *mxy = o_xy->buf;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t s = 0; s < n; s++) {
+        npix[s] = 0; peak[s] = -INFINITY; s0[s] = 0.0; s1[s] = 0.0; s2[s] = 0.0;
+        mxx[s] = 0.0; myy[s] = 0.0; mxy[s] = 0.0;
+    }
+    for (Py_ssize_t i = 0; i < M; i++) {
+#define VALUE(SUF, T) val[i] = (double)((const T *)ib->buf)[pix[i]]
+        DISPATCH(t, VALUE)
+#undef VALUE
+    }
+    for (Py_ssize_t i = 0; i < M; i++) {
+        Py_ssize_t s = who[i], r = pix[i] / w, c = pix[i] - r * w;
+        double wq = np_maximum(val[i] - bg[i], 1e-12);
+        wt[i] = wq;
+        s0[s] += wq;
+        s1[s] += wq * (double)c;
+        s2[s] += wq * (double)r;
+        npix[s] += 1;
+        peak[s] = np_maximum(peak[s], val[i]);
+        if (val[i] >= saturation) sat[s] = 1;
+        if (r == 0 || r == h - 1 || c == 0 || c == w - 1) edge[s] = 1;
+    }
+    for (Py_ssize_t s = 0; s < n; s++) {
+        cx[s] = s1[s] / s0[s];
+        cy[s] = s2[s] / s0[s];
+    }
+    for (Py_ssize_t i = 0; i < M; i++) {
+        Py_ssize_t s = who[i], r = pix[i] / w, c = pix[i] - r * w;
+        double dx = (double)c - cx[s], dy = (double)r - cy[s];
+        mxx[s] += wt[i] * (dx * dx);
+        myy[s] += wt[i] * (dy * dy);
+        mxy[s] += wt[i] * (dx * dy);
+    }
+    for (Py_ssize_t s = 0; s < n; s++) {
+        mxx[s] /= s0[s];
+        myy[s] /= s0[s];
+        mxy[s] /= s0[s];
+        double half_diff = (mxx[s] - myy[s]) / 2.0, mean = (mxx[s] + myy[s]) / 2.0;
+        double root = sqrt(half_diff * half_diff + mxy[s] * mxy[s]);
+        double major = mean + root, minor = np_maximum(mean - root, 1e-12);
+        int64_t f = sat[s] ? f_sat : 0;
+        if (edge[s]) f |= f_edge;
+        if (npix[s] >= 9 && major > elong2 * minor) f |= f_elong;
+        flags[s] = f;
+    }
+    Py_END_ALLOW_THREADS
+    free(val); free(wt); free(s1); free(s2); free(sat); free(edge);
+    bufs_release(&bs);
+    Py_RETURN_NONE;
+}
+
 /* ------------------------------------------------------------------ line filter */
 
 /* tap_sum(src0, src1, src2, terms (T, 2) i8 [source, shift], out, span, T, double?): out[i] = sum over
@@ -2044,6 +2140,7 @@ static PyMethodDef methods[] = {
     {"crowded_count", py_crowded_count, METH_VARARGS, "Bright pixels outside each window's footprint."},
     {"point_start", py_point_start, METH_VARARGS, "Start values of the point fits."},
     {"too_sharp", py_too_sharp, METH_VARARGS, "Peaks sharper than the PSF allows."},
+    {"component_stats", py_component_stats, METH_VARARGS, "Per-star sums over the stars' pixels."},
     {NULL, NULL, 0, NULL},
 };
 

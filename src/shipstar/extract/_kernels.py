@@ -501,3 +501,24 @@ def too_sharp(image, peaks, bg, noise, saturated, inv_gain: float, ratio_total: 
                         float(ratio_total), float(ratio_total) ** 2, float(ratio_edges), float(ratio_edges) ** 2,
                         float(n_sigma), code)
     return out
+
+
+def component_stats(image, pix, who, bg, n: int, saturation: float, elongation2: float, flag_saturated: int,
+                    flag_edge: int, flag_elongated: int) -> dict:
+    """Per star ``0 .. n - 1`` of the pixels ``pix`` (flat) that belong to star ``who`` (both (M,)),
+    background ``bg`` (M,): its pixel count, peak, flags and thresholded centre of gravity and
+    second moments (``_point._component_stats_python``'s dict, the same values)."""
+    image, code = _pixels(image)
+    pix = _flat_indices(pix, image.size)
+    who = np.ascontiguousarray(who, dtype=np.int64).reshape(-1)
+    bg = _f8(bg).reshape(-1)
+    m = pix.size
+    if who.shape != (m,) or bg.shape != (m,):
+        raise ValueError("component_stats: arrays of inconsistent lengths")
+    npix, flags = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
+    peak, flux, cx, cy, mxx, myy, mxy = (np.empty(n) for _ in range(7))
+    _ckernels.component_stats(image, pix, who, bg, npix, peak, flux, cx, cy, mxx, myy, mxy, flags, m, int(n),
+                              *image.shape, float(saturation), float(elongation2), int(flag_saturated),
+                              int(flag_edge), int(flag_elongated), code)
+    return dict(npix=npix, peak=peak, flags=flags, cog=np.stack([cx, cy], axis=1), cog_flux=flux,
+                moments=np.stack([mxx, myy, mxy], axis=1))

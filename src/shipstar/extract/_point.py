@@ -35,6 +35,7 @@ from shipstar.extract._fit import (
     start_values,
     window_half_px,
 )
+from shipstar.extract._kernels import component_stats as kernel_component_stats
 from shipstar.extract._kernels import too_sharp as kernel_too_sharp
 from shipstar.extract._result import FLAG_EDGE, FLAG_ELONGATED, FLAG_FIT_FAILED, FLAG_SATURATED
 
@@ -81,7 +82,23 @@ def detect_objects(arr, mesh, threshold_sigma):
 
 
 def component_stats(arr, mesh, idx, labels, star_labels, saturation):
-    """Per star: npix, peak value, saturated/edge/elongated, thresholded centre of gravity."""
+    """Per star: npix, peak value, saturated/edge/elongated, thresholded centre of gravity
+    (compiled: :func:`_component_stats_python`'s values, bit for bit)."""
+    width = arr.shape[1]
+    n = len(star_labels)
+    star_of_label = np.full(labels.max() + 1 if labels.size else 0, -1)
+    star_of_label[star_labels] = np.arange(n)
+    star = star_of_label[labels] if labels.size else np.zeros(0, dtype=int)
+    sel = star >= 0
+    pix, who = idx[sel], star[sel]
+    row, col = np.divmod(pix, width)
+    bg, _ = mesh.at(col, row)
+    return kernel_component_stats(arr, pix, who, bg, n, saturation, ELONGATION_LIMIT ** 2, FLAG_SATURATED, FLAG_EDGE,
+                                  FLAG_ELONGATED)
+
+
+def _component_stats_python(arr, mesh, idx, labels, star_labels, saturation):
+    """:func:`component_stats` in NumPy (the compiled kernel's reference)."""
     height, width = arr.shape
     n = len(star_labels)
     star_of_label = np.full(labels.max() + 1 if labels.size else 0, -1)
