@@ -48,6 +48,29 @@ def test_direction_info_with_a_shape_and_a_floor_is_that_covariance():
     assert np.allclose(G, np.linalg.inv(np.swapaxes(L, 1, 2) @ L), rtol=1e-12)
 
 
+def test_compiled_direction_info_is_the_numpy_reference():
+    """``direction_info`` in closed form (compiled) against its LAPACK reference
+    (``_direction_info_python``): the same information, whitening and Gram matrices to 1e-12,
+    with and without a shape and a floor, over the whole image of both cameras; a covariance
+    that is not positive definite is refused as LAPACK refuses it."""
+    from shipstar.pipeline._sensor import _direction_info_python
+
+    rng = np.random.default_rng(54)
+    for name in ("A1", "A2"):
+        cam = camera_preset(name)
+        xy, cov = _field(rng, 200, cam)
+        for S, floor in ((None, 0.0), (np.array([[1.7, 0.2], [0.2, 0.8]]), 0.07)):
+            got, want = direction_info(cam, xy, cov, S, floor_px=floor), _direction_info_python(cam, xy, cov, S,
+                                                                                                floor_px=floor)
+            for g, r in zip(got, want):
+                scale = np.max(np.abs(r), axis=tuple(range(1, r.ndim)), keepdims=True)
+                np.testing.assert_allclose(g / scale, r / scale, rtol=0, atol=1e-12)
+    bad = cov.copy()
+    bad[3] = [[0.01, 0.02], [0.02, 0.01]]                             # not positive definite
+    with pytest.raises(np.linalg.LinAlgError):
+        direction_info(cam, xy, bad)
+
+
 def _field(rng, n, cam):
     """``n`` stars over the image; Cramer-Rao sigmas from 0.01 px (bright) to 0.5 px."""
     xy = rng.uniform(40.0, 980.0, (n, 2))

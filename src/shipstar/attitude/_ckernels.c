@@ -1100,8 +1100,78 @@ static PyObject *py_integrity(PyObject *self, PyObject *args)
     return PyLong_FromLong(ok);
 }
 
+/* direction_info(w (n, 3), cov (n, 2, 2), S (2, 2), out_info (n, 3, 3), out_whiten (n, 2, 3), out_gram (n, 2, 2),
+ *                n, rad_per_px, floor2) -> the number of covariances that are not positive definite
+ * (then nothing is written: the caller's NumPy path raises as before).  shipstar.pipeline._sensor.
+ * direction_info star by star in closed form (its docstring has the algebra): J (3 x 2) the pinhole's
+ * derivative of the direction by the pixel position, J+ = (J^T J)^-1 J^T, L L^T = cov, whiten =
+ * L^-1 J+, G = L^-1 L^-T, info = whiten^T (S + floor2 G)^-1 whiten; the same values as NumPy's
+ * LAPACK calls to rounding. */
+static PyObject *py_direction_info(PyObject *self, PyObject *args)
+{
+    Py_buffer bw, bc, bS, oi, ow, og;
+    Py_ssize_t n;
+    double scale, floor2;
+    if (!PyArg_ParseTuple(args, "y*y*y*w*w*w*ndd", &bw, &bc, &bS, &oi, &ow, &og, &n, &scale, &floor2)) return NULL;
+    const double *w = bw.buf, *cov = bc.buf, *S = bS.buf;
+    double *info = oi.buf, *whiten = ow.buf, *gram = og.buf;
+    Py_ssize_t bad = 0;
+    for (Py_ssize_t s = 0; s < n; s++) {
+        const double *c = cov + 4 * s;
+        double l00 = c[0] > 0.0 ? sqrt(c[0]) : NAN;
+        double l10 = c[2] / l00, d = c[3] - l10 * l10;
+        if (!(c[0] > 0.0 && d > 0.0 && isfinite(d))) bad++;
+    }
+    if (bad == 0) {
+        for (Py_ssize_t s = 0; s < n; s++) {
+            const double *u = w + 3 * s, *c = cov + 4 * s;
+            double k = scale * u[0];
+            double P[3][3];
+            for (int a = 0; a < 3; a++)
+                for (int b = 0; b < 3; b++) P[a][b] = (a == b ? 1.0 : 0.0) - u[a] * u[b];
+            double J[3][2];
+            for (int a = 0; a < 3; a++) { J[a][0] = P[a][2] * k; J[a][1] = -P[a][1] * k; }
+            double A00 = J[0][0] * J[0][0] + J[1][0] * J[1][0] + J[2][0] * J[2][0];
+            double A01 = J[0][0] * J[0][1] + J[1][0] * J[1][1] + J[2][0] * J[2][1];
+            double A11 = J[0][1] * J[0][1] + J[1][1] * J[1][1] + J[2][1] * J[2][1];
+            double det = A00 * A11 - A01 * A01;
+            double Jp[2][3];                                   /* (J^T J)^-1 J^T */
+            for (int a = 0; a < 3; a++) {
+                Jp[0][a] = (A11 * J[a][0] - A01 * J[a][1]) / det;
+                Jp[1][a] = (A00 * J[a][1] - A01 * J[a][0]) / det;
+            }
+            double l00 = sqrt(c[0]), l10 = c[2] / l00, l11 = sqrt(c[3] - l10 * l10);
+            double *Wt = whiten + 6 * s;                        /* L^-1 J+ by forward substitution */
+            for (int a = 0; a < 3; a++) {
+                Wt[a] = Jp[0][a] / l00;
+                Wt[3 + a] = (Jp[1][a] - l10 * Wt[a]) / l11;
+            }
+            double i00 = 1.0 / l00, i10 = -l10 / (l00 * l11), i11 = 1.0 / l11;   /* L^-1 */
+            double *G = gram + 4 * s;
+            G[0] = i00 * i00;
+            G[1] = G[2] = i00 * i10;
+            G[3] = i10 * i10 + i11 * i11;
+            double V00 = S[0] + floor2 * G[0], V01 = S[1] + floor2 * G[1], V10 = S[2] + floor2 * G[2],
+                   V11 = S[3] + floor2 * G[3];
+            double dv = V00 * V11 - V01 * V10;
+            double Vi[2][2] = {{V11 / dv, -V01 / dv}, {-V10 / dv, V00 / dv}};
+            double *I = info + 9 * s;
+            for (int a = 0; a < 3; a++)
+                for (int b = 0; b < 3; b++) {
+                    double t0 = Vi[0][0] * Wt[b] + Vi[0][1] * Wt[3 + b];
+                    double t1 = Vi[1][0] * Wt[b] + Vi[1][1] * Wt[3 + b];
+                    I[3 * a + b] = Wt[a] * t0 + Wt[3 + a] * t1;
+                }
+        }
+    }
+    PyBuffer_Release(&bw); PyBuffer_Release(&bc); PyBuffer_Release(&bS);
+    PyBuffer_Release(&oi); PyBuffer_Release(&ow); PyBuffer_Release(&og);
+    return PyLong_FromSsize_t(bad);
+}
+
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS, "solve_attitude's QUEST path (see _solve.py)"},
+    {"direction_info", py_direction_info, METH_VARARGS, "direction_info (see pipeline/_sensor.py)"},
     {"quest", py_quest, METH_VARARGS, "QUEST of weighted rows (see pipeline/_conditions.py)"},
     {"residual_moments", py_residual_moments, METH_VARARGS,
      "expected whitened residual moments of a weighted fit (see pipeline/_conditions.py)"},

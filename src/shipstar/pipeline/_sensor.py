@@ -315,6 +315,24 @@ def direction_info(camera, xy_px, cov_px2, shape=None, w_sensor=None, floor_px: 
     floor_gram_per_px2 : ndarray, shape (N, 2, 2)
         ``G = L^-1 L^-T``: the floor's covariance in those units is ``f^2 G``.
     """
+    from shipstar.attitude import _ckernels
+
+    w = np.ascontiguousarray(camera.unproject(xy_px) if w_sensor is None else w_sensor, dtype=np.float64)
+    cov = np.ascontiguousarray(cov_px2, dtype=np.float64)
+    S = np.ascontiguousarray(np.eye(2) if shape is None else shape, dtype=np.float64)
+    n = len(w)
+    if w.shape == (n, 3) and cov.shape == (n, 2, 2) and S.shape == (2, 2):
+        info, whiten, gram = np.empty((n, 3, 3)), np.empty((n, 2, 3)), np.empty((n, 2, 2))
+        # compiled, in closed form: _direction_info_python's values to rounding
+        if _ckernels.direction_info(w, cov, S, info, whiten, gram, n, camera.pixel_mm / camera.f_mm,
+                                    float(floor_px) ** 2) == 0:
+            return info, whiten, gram
+    return _direction_info_python(camera, xy_px, cov_px2, shape, w, floor_px)
+
+
+def _direction_info_python(camera, xy_px, cov_px2, shape=None, w_sensor=None, floor_px: float = 0.0):
+    """:func:`direction_info` in NumPy (LAPACK's factors and solves: the compiled kernel's
+    reference; it also raises, as LAPACK does, on a covariance not positive definite)."""
     w = camera.unproject(xy_px) if w_sensor is None else np.asarray(w_sensor, float)
     k = camera.pixel_mm / camera.f_mm * w[:, 0]                      # rad per px along each axis
     P = np.eye(3) - w[:, :, None] * w[:, None, :]
