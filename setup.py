@@ -13,6 +13,7 @@ _CFLAGS = ["-O3", "-std=c99", "-fno-math-errno", "-Wall"]
 _QUEST_H = ["src/shipstar/_cquest.h"]
 
 EXTENSIONS = [
+    Extension("shipstar._cfits", ["src/shipstar/_cfits.c"], extra_compile_args=_CFLAGS),
     Extension("shipstar.extract._ckernels", ["src/shipstar/extract/_ckernels.c"], extra_compile_args=_CFLAGS),
     Extension("shipstar.identify._ckernels", ["src/shipstar/identify/_ckernels.c"], extra_compile_args=_CFLAGS,
               depends=_QUEST_H),

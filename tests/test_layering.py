@@ -10,7 +10,7 @@ import shipstar
 #: The stages, bottom first.  A module of stage i may import stages 0..i only.
 ORDER = [
     "units", "errors", "limits", "_atomic", "_digest", "_signals", "frames",
-    "sky", "_fitsio", "camera", "simulate", "extract",
+    "sky", "_cfits", "_fitsio", "camera", "simulate", "extract",
     "attitude", "identify",
     "calibrate", "ship", "errormodel", "pipeline", "live",
     "report", "config", "_demo",

@@ -47,12 +47,14 @@ from __future__ import annotations
 import contextlib
 import math
 import re
+import sys
 import threading
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from shipstar import _cfits
 from shipstar.errors import ShipstarError
 
 __all__ = ["FitsFrameInfo", "read_fits", "read_fits_header", "read_fits_image", "FITS_SUFFIXES",
@@ -369,6 +371,9 @@ def _plain_dtype(cards: dict):
     return None
 
 
+#: The compiled in-place byte swap serves little-endian hosts (big-endian ones: NumPy).
+_LITTLE_ENDIAN = sys.byteorder == "little"
+
 _local = threading.local()
 #: Largest read buffer kept for the next frame (larger images get a fresh one).
 _MAX_KEPT_BYTES = 64 * 2 ** 20
@@ -403,19 +408,29 @@ def _quick_read(path: Path, date_obs_is: str | None):
             shape = (int(cards["NAXIS2"]), int(cards["NAXIS1"]))
             if min(shape) < 1:
                 return None
-            raw = _read_buffer(shape[0] * shape[1] * stored.itemsize)
             fh.seek(header_bytes)
-            if fh.readinto(raw) != raw.nbytes:
-                return None                                  # truncated: astropy says so
+            if _LITTLE_ENDIAN:
+                # the pixels straight into the image, then turned to native order in place
+                # (and the unsigned offset's sign bit flipped) by one compiled pass
+                data = np.empty(shape, dtype=dtype)
+                if fh.readinto(data.reshape(-1).view(np.uint8)) != data.nbytes:
+                    return None                              # truncated: astropy says so
+                if data.itemsize > 1:
+                    _cfits.swap_xor(data, data.size, data.itemsize, int(mask))
+            else:
+                raw = _read_buffer(shape[0] * shape[1] * stored.itemsize)
+                if fh.readinto(raw) != raw.nbytes:
+                    return None
+                data = None
     except (OSError, ValueError):
         return None
-    # one pass from the (reused) read buffer into the image, native byte order
-    if mask:                                # the unsigned offset: flip the sign bit of the stored integers
-        data = np.empty(shape, dtype=dtype)
-        np.bitwise_xor(raw.view(stored.newbyteorder(">").str.replace("i", "u")).reshape(shape), dtype.type(mask),
-                       out=data)
-    else:
-        data = raw.view(stored).reshape(shape).astype(stored.newbyteorder("="))
+    if data is None:                        # a big-endian host: one NumPy pass from the read buffer
+        if mask:                            # the unsigned offset: flip the sign bit of the stored integers
+            data = np.empty(shape, dtype=dtype)
+            np.bitwise_xor(raw.view(stored.newbyteorder(">").str.replace("i", "u")).reshape(shape),
+                           dtype.type(mask), out=data)
+        else:
+            data = raw.view(stored).reshape(shape).astype(stored.newbyteorder("="))
     name = path.name
     row_order = _row_order(cards.get, name)
     info = None if date_obs_is is None else _info(cards.get, shape, name, date_obs_is)
