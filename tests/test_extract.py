@@ -859,6 +859,21 @@ def test_smeared_frame_flags_saturated_edge_and_trails():
 
 # -- the compiled kernels against SciPy (the code they replaced) ------------------------------
 
+def test_compiled_mesh_median_filter_is_scipy_median_filter():
+    """The mesh's 3 x 3 median (``_kernels.median3``, an exchange network of 19 steps) is
+    ``scipy.ndimage.median_filter(size=3, mode="nearest")``: grids of every small size, with
+    many ties (integer values) and without."""
+    from scipy.ndimage import median_filter
+
+    from shipstar.extract._kernels import median3
+
+    rng = np.random.default_rng(55)
+    for trial in range(400):
+        shape = tuple(int(v) for v in rng.integers(1, 13, 2))
+        grid = rng.normal(size=shape) if trial % 2 else rng.integers(0, 4, shape).astype(float)
+        np.testing.assert_array_equal(median3(grid), median_filter(grid, size=3, mode="nearest"), err_msg=str(trial))
+
+
 def test_compiled_box_mean_and_labels_match_scipy_ndimage():
     """``_kernels.box3`` is ``scipy.ndimage.uniform_filter(size=3, mode="nearest")`` to the bit,
     ``label_runs`` numbers components as ``scipy.ndimage.label`` does (4- and 8-connected)."""
