@@ -874,6 +874,22 @@ def test_compiled_mesh_median_filter_is_scipy_median_filter():
         np.testing.assert_array_equal(median3(grid), median_filter(grid, size=3, mode="nearest"), err_msg=str(trial))
 
 
+def test_compiled_median_absolute_deviation_is_the_two_medians():
+    """The box-noise factor's robust spread (``_kernels.median_abs_deviation``) is
+    ``median(|z - median(z)|)`` with ``_background.median`` (the middle value, or the mean of
+    the two): exactly, for odd and even counts, with many ties and without, and one value."""
+    from shipstar.extract._background import median
+    from shipstar.extract._kernels import median_abs_deviation
+
+    rng = np.random.default_rng(56)
+    for trial in range(500):
+        n = int(rng.integers(1, 200))
+        x = rng.normal(size=n) * 10.0 ** rng.uniform(-3, 3) if trial % 3 else rng.integers(0, 5, n).astype(float)
+        assert median_abs_deviation(x) == median(np.abs(x - median(x))), trial
+    with pytest.raises(ValueError):
+        median_abs_deviation(np.zeros(0))
+
+
 def test_compiled_box_mean_and_labels_match_scipy_ndimage():
     """``_kernels.box3`` is ``scipy.ndimage.uniform_filter(size=3, mode="nearest")`` to the bit,
     ``label_runs`` numbers components as ``scipy.ndimage.label`` does (4- and 8-connected)."""

@@ -15,7 +15,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from shipstar.extract._kernels import block_stats, grid_box_sums, grid_box_z, median3, mesh_at, value_step
+from shipstar.extract._kernels import (block_stats, grid_box_sums, grid_box_z, median3, median_abs_deviation,
+                                      mesh_at, value_step)
 
 __all__ = ["Mesh", "estimate_mesh", "median"]
 
@@ -166,8 +167,7 @@ def _box_noise_factor(image, mesh, max_samples=4096):
     total = grid_box_sums(image, step, rows.size, cols.size)     # compiled: _box_sums_python's sums
     # compiled: (total - 9 bg) / (3 noise), bg and noise as mesh.on_grid(cols, rows) gives them
     z = grid_box_z(total, mesh.bg, mesh.noise, mesh.block_px, step).ravel()
-    z -= median(z)
-    return float(max(1.0, 1.4826 * median(np.abs(z))))
+    return float(max(1.0, 1.4826 * median_abs_deviation(z)))         # compiled: median(|z - median(z)|)
 
 
 def _box_sums_python(image, step, n_rows, n_cols):

@@ -1877,6 +1877,32 @@ static double median_of(double *v, Py_ssize_t n) {
     return (lo + hi) / 2.0;
 }
 
+/* median_abs_deviation(x (n,) f8, n) -> the median of |x - median(x)| (_background.median's medians,
+ * exactly; n > 0): the box-noise factor's robust spread. */
+static PyObject *py_median_abs_deviation(PyObject *self, PyObject *args) {
+    Py_buffer xb;
+    Py_ssize_t n;
+    if (!PyArg_ParseTuple(args, "y*n", &xb, &n)) return NULL;
+    double *v = (n > 0 && xb.len == (Py_ssize_t)(n * sizeof(double))) ? malloc(sizeof(double) * (size_t)n) : NULL;
+    if (v == NULL) {
+        PyBuffer_Release(&xb);
+        if (n > 0 && xb.len == (Py_ssize_t)(n * sizeof(double))) return PyErr_NoMemory();
+        PyErr_SetString(PyExc_ValueError, "median_abs_deviation: bad sizes");
+        return NULL;
+    }
+    const double *x = xb.buf;
+    double mad;
+    Py_BEGIN_ALLOW_THREADS
+    memcpy(v, x, sizeof(double) * (size_t)n);
+    double med = median_of(v, n);
+    for (Py_ssize_t i = 0; i < n; i++) v[i] = fabs(x[i] - med);
+    mad = median_of(v, n);
+    Py_END_ALLOW_THREADS
+    free(v);
+    PyBuffer_Release(&xb);
+    return PyFloat_FromDouble(mad);
+}
+
 /* ring_levels(values (N, wy, wx) f8, valid u8, bg, noise (N,) f8, own_out (N,) f8, N, wy, wx, r) -> level:
  * _windowed._ring_shift's arithmetic: each window's border ring of width r (its top r rows, bottom
  * r rows, then the left and right r columns between them) less the window's mesh background; the
@@ -2142,6 +2168,7 @@ static PyMethodDef methods[] = {
     {"erf_array", py_erf_array, METH_VARARGS, "erf of a float64 array."},
     {"cho_solve", py_cho_solve, METH_VARARGS, "Cholesky substitutions of stacked systems, in place."},
     {"grid_box_z", py_grid_box_z, METH_VARARGS, "Whitened 3 x 3 sums on a regular grid of the mesh."},
+    {"median_abs_deviation", py_median_abs_deviation, METH_VARARGS, "Median of |x - median(x)|."},
     {"streak_start", py_streak_start, METH_VARARGS, "Start parameters of the streak fits."},
     {"window_peaks", py_window_peaks, METH_VARARGS, "The line filter's maximum near each window's centre."},
     {"ring_levels", py_ring_levels, METH_VARARGS, "Background levels of the windows' border rings."},

@@ -522,3 +522,12 @@ def component_stats(image, pix, who, bg, n: int, saturation: float, elongation2:
                               int(flag_edge), int(flag_elongated), code)
     return dict(npix=npix, peak=peak, flags=flags, cog=np.stack([cx, cy], axis=1), cog_flux=flux,
                 moments=np.stack([mxx, myy, mxy], axis=1))
+
+
+def median_abs_deviation(x) -> float:
+    """The median of ``|x - median(x)|`` of a non-empty array, exactly as
+    ``_background.median`` takes both medians (NaN-free values)."""
+    x = _f8(x).reshape(-1)
+    if x.size == 0:
+        raise ValueError("median_abs_deviation of no values")
+    return _ckernels.median_abs_deviation(x, x.size)
