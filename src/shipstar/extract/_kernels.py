@@ -374,10 +374,11 @@ def streak_start(win, col, row, sigma, d, reach: float, along_max: float, across
     n_star = len(values)
     wy, wx = values.shape[1:] if values.ndim == 3 else (0, 0)
     valid = np.ascontiguousarray(win.valid, dtype=np.bool_).view(np.uint8)
-    per_star = [_f8(np.broadcast_to(a, (n_star,))) for a in (win.bg, win.noise, win.x0, win.y0, col, row, sigma)]
-    d = _f8(np.broadcast_to(d, (n_star, 2)))
-    if values.shape != (n_star, wy, wx) or valid.shape != values.shape:
-        raise ValueError("streak_start: windows of inconsistent shapes")
+    per_star = [_f8(a).reshape(-1) for a in (win.bg, win.noise, win.x0, win.y0, col, row, sigma)]
+    d = _f8(d).reshape(-1, 2)
+    if values.shape != (n_star, wy, wx) or valid.shape != values.shape or d.shape != (n_star, 2) \
+            or any(a.shape != (n_star,) for a in per_star):
+        raise ValueError("streak_start: arrays of inconsistent shapes")
     p0 = np.empty((n_star, 7))
     _ckernels.streak_start(values, valid, *per_star, d, p0, n_star, wy, wx, float(reach), float(along_max),
                            float(across_max))

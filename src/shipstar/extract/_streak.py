@@ -180,10 +180,12 @@ def start_parameters(win, col, row, sigma, smear):
     Compiled (``_kernels.streak_start``): :func:`_start_parameters_python`'s values to the bit.
     """
     n_star = len(col)
-    d = np.broadcast_to(np.asarray(smear, dtype=float), (n_star, 2))
-    peak = np.stack([col, row], axis=1).astype(float)
-    return _kernels.streak_start(win, peak[:, 0], peak[:, 1], np.broadcast_to(np.asarray(sigma, float), (n_star,)),
-                                 d, 1.5 * float(np.max(sigma)) + 0.5, _START_ALONG_PX, _START_ACROSS_PX)
+    smear = np.asarray(smear, dtype=float)
+    sigma = np.asarray(sigma, dtype=float)
+    d = np.ascontiguousarray(np.broadcast_to(smear, (n_star, 2)))
+    sigma_n = np.full(n_star, float(sigma)) if sigma.ndim == 0 else sigma
+    return _kernels.streak_start(win, np.asarray(col, dtype=float), np.asarray(row, dtype=float), sigma_n, d,
+                                 1.5 * float(np.max(sigma)) + 0.5, _START_ALONG_PX, _START_ACROSS_PX)
 
 
 def _start_parameters_python(win, col, row, sigma, smear):
