@@ -84,31 +84,30 @@ def detect_objects(arr, mesh, threshold_sigma):
 def component_stats(arr, mesh, idx, labels, star_labels, saturation):
     """Per star: npix, peak value, saturated/edge/elongated, thresholded centre of gravity
     (compiled: :func:`_component_stats_python`'s values, bit for bit)."""
-    width = arr.shape[1]
+    n, pix, who, row, col, bg = _star_pixels(arr, mesh, idx, labels, star_labels)
+    return kernel_component_stats(arr, pix, who, bg, n, saturation, ELONGATION_LIMIT ** 2, FLAG_SATURATED, FLAG_EDGE,
+                                  FLAG_ELONGATED)
+
+
+def _star_pixels(arr, mesh, idx, labels, star_labels):
+    """``(n, pix, who, row, col, bg)``: the candidate pixels ``idx`` of the components of the
+    ``n`` stars ``star_labels``, each one's star (0 .. n - 1), position and mesh background."""
     n = len(star_labels)
     star_of_label = np.full(labels.max() + 1 if labels.size else 0, -1)
     star_of_label[star_labels] = np.arange(n)
     star = star_of_label[labels] if labels.size else np.zeros(0, dtype=int)
     sel = star >= 0
     pix, who = idx[sel], star[sel]
-    row, col = np.divmod(pix, width)
+    row, col = np.divmod(pix, arr.shape[1])
     bg, _ = mesh.at(col, row)
-    return kernel_component_stats(arr, pix, who, bg, n, saturation, ELONGATION_LIMIT ** 2, FLAG_SATURATED, FLAG_EDGE,
-                                  FLAG_ELONGATED)
+    return n, pix, who, row, col, bg
 
 
 def _component_stats_python(arr, mesh, idx, labels, star_labels, saturation):
     """:func:`component_stats` in NumPy (the compiled kernel's reference)."""
     height, width = arr.shape
-    n = len(star_labels)
-    star_of_label = np.full(labels.max() + 1 if labels.size else 0, -1)
-    star_of_label[star_labels] = np.arange(n)
-    star = star_of_label[labels] if labels.size else np.zeros(0, dtype=int)
-    sel = star >= 0
-    pix, who = idx[sel], star[sel]
-    row, col = np.divmod(pix, width)
+    n, pix, who, row, col, bg = _star_pixels(arr, mesh, idx, labels, star_labels)
     values = arr.reshape(-1)[pix].astype(float)
-    bg, _ = mesh.at(col, row)
     w = np.maximum(values - bg, 1e-12)
     sums = [np.bincount(who, weights=q, minlength=n) for q in (w, w * col, w * row)]
     cx, cy = sums[1] / sums[0], sums[2] / sums[0]
