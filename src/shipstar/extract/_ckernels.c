@@ -563,7 +563,7 @@ static inline double np_maximum(double a, double b) { return (a >= b || isnan(a)
 
 static inline double np_clip(double x, double lo, double hi) { return x < lo ? lo : (x > hi ? hi : x); }
 
-static void sort_doubles(double *v, int n) {        /* insertion sort: 9 values */
+static void sort_doubles(double *v, int n) {        /* insertion sort of a few values (the hot-pixel test's 4 edges) */
     for (int i = 1; i < n; i++) {
         double x = v[i];
         int j = i - 1;
