@@ -238,6 +238,45 @@ def test_trail_mask_flags_a_line_and_not_stars():
     assert np.all(_near_segment(ex.xy_px[trail], (20.0, 30.0), (180.0, 150.0), 3.0))
 
 
+def test_compiled_trail_region_is_the_numpy_reference():
+    """The trail test's region (``_artifacts._region_shape``: the 3 x 3 smoothed window cut
+    at 2.5 sigma, the 4-connected region at the detection, its extent along and across its
+    principal axes), compiled, against the NumPy code it replaced (kept as the reference):
+    the same region on lines, streaks, blobs that touch, single pixels and the frame's edges,
+    in integer and float frames, with the cut given as a Python float (compared in float32,
+    as NumPy does) and as a NumPy float64; the extents to 1e-9 px (the axes in closed form
+    against LAPACK's eigh)."""
+    from shipstar.extract._artifacts import _region_shape, _region_shape_python
+
+    rng = np.random.default_rng(71)
+    yy, xx = np.mgrid[:160, :200]
+    n_regions = n_lines = 0
+    for trial in range(16):
+        img = 100.0 + rng.normal(0.0, 2.0, yy.shape)
+        for _ in range(3):                                   # lines at any angle, some off the frame
+            a = rng.uniform(0.0, np.pi)
+            x0, y0 = rng.uniform(-20, 220), rng.uniform(-20, 180)
+            d = np.abs((xx - x0) * np.sin(a) - (yy - y0) * np.cos(a))
+            img += rng.uniform(10, 80) * np.exp(-d ** 2 / 2.0) * (np.hypot(xx - x0, yy - y0) < rng.uniform(10, 90))
+        for _ in range(25):                                  # stars and short streaks, some touching
+            x, y, L = rng.uniform(-3, 203), rng.uniform(-3, 163), rng.uniform(0, 8)
+            img += rng.uniform(20, 500) * np.exp(-(np.maximum(np.abs(xx - x) - L, 0) ** 2 + (yy - y) ** 2) / 1.3)
+        img[rng.integers(0, 160, 6), rng.integers(0, 200, 6)] += 300.0      # single hot pixels
+        if trial % 2:
+            img = np.round(img).astype(np.uint16)
+        pts = np.column_stack([rng.uniform(-0.4, 199.4, 60), rng.uniform(-0.4, 159.4, 60)])
+        pts[:6] = [[0, 0], [199, 159], [0, 159], [199, 0], [1.4, 80.0], [100.0, 158.6]]
+        for k, (x, y) in enumerate(pts):
+            background = 100.0 if k % 2 else np.float64(100.0)
+            noise = float(rng.uniform(1.5, 2.5)) if k % 3 else np.float64(2.0)
+            got = _region_shape(img, x, y, background, noise)
+            want = _region_shape_python(img, x, y, background, noise)
+            np.testing.assert_allclose(got, want, rtol=0.0, atol=1e-9, err_msg=f"{trial} {k} {x} {y}")
+            n_regions += want[0] > 0
+            n_lines += want[0] >= 25.0 and want[0] >= 3.0 * want[1]
+    assert n_regions > 200 and n_lines > 30          # the cases the test is about were met (264, 47)
+
+
 def test_persistent_pixels_are_found_while_the_stars_move():
     from shipstar.extract._artifacts import PersistentPixels
 

@@ -200,16 +200,19 @@ _PLAIN = [
 
 
 @pytest.mark.parametrize("dtype, bitpix, bzero", _PLAIN)
-@pytest.mark.parametrize("roworder", [None, "BOTTOM-UP"])
-def test_plain_images_are_read_directly_as_astropy_reads_them(tmp_path, monkeypatch, dtype, bitpix, bzero, roworder):
+@pytest.mark.parametrize("roworder, shape", [(None, (37, 53)), ("BOTTOM-UP", (37, 53)), (None, (613, 517))])
+def test_plain_images_are_read_directly_as_astropy_reads_them(tmp_path, monkeypatch, dtype, bitpix, bzero, roworder,
+                                                             shape):
+    """Pixels and header as astropy's; (613, 517) spans several of the reader's 256 KiB
+    chunks (``_cfits.read_swap``) with a partial one at the end for every BITPIX."""
     from astropy.io import fits
 
     from shipstar._fitsio import _quick_read
 
     rng = np.random.default_rng(bitpix + 100)
     info = np.iinfo(dtype) if np.dtype(dtype).kind in "ui" else None
-    data = (rng.integers(info.min, info.max, size=(37, 53), endpoint=True, dtype=dtype) if info is not None
-            else rng.normal(0.0, 1e3, size=(37, 53)).astype(dtype))
+    data = (rng.integers(info.min, info.max, size=shape, endpoint=True, dtype=dtype) if info is not None
+            else rng.normal(0.0, 1e3, size=shape).astype(dtype))
     cards = [("DATE-OBS", START), ("EXPTIME", 0.08), ("SENSOR", "A1"), ("SITELAT", 31.9), ("PRESSURE", 1012.5)]
     path = _write(tmp_path / "plain.fits", cards + ([("ROWORDER", roworder)] if roworder else []), data)
     header = fits.getheader(path)
@@ -279,6 +282,14 @@ def test_a_truncated_plain_image_is_left_to_astropy(tmp_path):
     (tmp_path / "trunc.fits").write_bytes(data[:len(data) - 3000])
     assert _quick_read(tmp_path / "good.fits", None) is not None
     assert _quick_read(tmp_path / "trunc.fits", None) is None
+    # a frame of several read chunks, cut inside its second chunk, its last one, and by one byte
+    big = _write(tmp_path / "big.fits", [("DATE-OBS", START), ("EXPTIME", 0.1)],
+                 np.arange(700 * 600, dtype=np.int32).reshape(700, 600)).read_bytes()
+    assert _quick_read(tmp_path / "big.fits", None) is not None
+    data_end = len(big) - (-700 * 600 * 4) % 2880                  # before the last block's padding
+    for cut in (400_000, data_end - 3000, data_end - 1):
+        (tmp_path / "cut.fits").write_bytes(big[:cut])
+        assert _quick_read(tmp_path / "cut.fits", None) is None, cut
 
 
 def _good_bytes(tmp_path):

@@ -410,13 +410,18 @@ def _quick_read(path: Path, date_obs_is: str | None):
                 return None
             fh.seek(header_bytes)
             if _LITTLE_ENDIAN:
-                # the pixels straight into the image, then turned to native order in place
-                # (and the unsigned offset's sign bit flipped) by one compiled pass
+                # the pixels straight into the image, turned to native order in place (and
+                # the unsigned offset's sign bit flipped) chunk by chunk as they are read
                 data = np.empty(shape, dtype=dtype)
-                if fh.readinto(data.reshape(-1).view(np.uint8)) != data.nbytes:
-                    return None                              # truncated: astropy says so
+                got = -2
                 if data.itemsize > 1:
-                    _cfits.swap_xor(data, data.size, data.itemsize, int(mask))
+                    got = _cfits.read_swap(fh.fileno(), header_bytes, data, data.size, data.itemsize, int(mask))
+                if got == -2:                                # bytes, or no pread here: read, then swap
+                    got = fh.readinto(data.reshape(-1).view(np.uint8))
+                    if got == data.nbytes and data.itemsize > 1:
+                        _cfits.swap_xor(data, data.size, data.itemsize, int(mask))
+                if got != data.nbytes:
+                    return None                              # truncated: astropy says so
             else:
                 raw = _read_buffer(shape[0] * shape[1] * stored.itemsize)
                 if fh.readinto(raw) != raw.nbytes:

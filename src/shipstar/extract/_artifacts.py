@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from shipstar.extract._kernels import box3, label_runs
+from shipstar.extract._kernels import box3, label_runs, region_shape
 from shipstar.extract._result import FLAG_ELONGATED, FLAG_FIT_FAILED
 
 __all__ = ["trail_mask", "PersistentPixels", "TRAIL_MIN_LENGTH_PX", "TRAIL_MIN_AXIS_RATIO"]
@@ -38,7 +38,27 @@ _CUT_SIGMA = 2.5
 
 
 def _region_shape(image, x: float, y: float, background: float, noise: float):
-    """``(length_px, width_px)`` of the smoothed region around ``(x, y)`` (0, 0 if none)."""
+    """``(length_px, width_px)`` of the smoothed region around ``(x, y)`` (0, 0 if none).
+
+    The window's pixels are cut from the frame here and the rest is one compiled call
+    (:func:`._kernels.region_shape`, ~25 us against ~140 us); :func:`_region_shape_python`
+    is its reference (the same regions; the axes' extents to rounding: the principal axes
+    in closed form against LAPACK's)."""
+    h, w = image.shape
+    ix, iy = int(round(x)), int(round(y))
+    x0, x1 = max(ix - _WINDOW_HALF_PX, 0), min(ix + _WINDOW_HALF_PX + 1, w)
+    y0, y1 = max(iy - _WINDOW_HALF_PX, 0), min(iy + _WINDOW_HALF_PX + 1, h)
+    if x1 <= x0 or y1 <= y0:
+        return _region_shape_python(image, x, y, background, noise)
+    cut = background + _CUT_SIGMA * noise / 3.0
+    if np.result_type(np.float32, cut) == np.float32:      # NumPy compares a float32 frame with a
+        cut = float(np.float32(cut))                       # Python float in float32
+    cx, cy = min(max(ix - x0, 0), x1 - x0 - 1), min(max(iy - y0, 0), y1 - y0 - 1)
+    return region_shape(image[y0:y1, x0:x1], cx, cy, cut)
+
+
+def _region_shape_python(image, x: float, y: float, background: float, noise: float):
+    """:func:`_region_shape` in NumPy (the compiled kernel's reference)."""
     h, w = image.shape
     ix, iy = int(round(x)), int(round(y))
     x0, x1 = max(ix - _WINDOW_HALF_PX, 0), min(ix + _WINDOW_HALF_PX + 1, w)

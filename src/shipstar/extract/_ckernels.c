@@ -20,6 +20,7 @@
  *   tap_sum           the line filter's sum of shifted images, tile by tile
  *   line_filter       the whole line filter from the frame, row by row
  *   box3              3 x 3 mean of a float32 window (trails, _artifacts)
+ *   region_shape      the trail test's region around a detection: its length and width
  *   label_runs        8- (or 4-) connected components of sorted candidate pixels (union-find on runs)
  *   suppress          greedy suppression of peaks within a stronger peak's streak footprint
  *   erf_array         erf of an array (libm)
@@ -1510,6 +1511,31 @@ static void box3_line(const float *in, Py_ssize_t stride, Py_ssize_t n, float *o
     }
 }
 
+/* box3_line along axis 0 for every column at once, row by row (the same sums per column, in
+ * the same order: the running sum of line[] = the column with its ends repeated), so that
+ * the loops run over contiguous rows; acc (w,) doubles. */
+static void box3_axis0(const float *in, Py_ssize_t h, Py_ssize_t w, float *out, double *acc) {
+#define ROW(j) (in + ((j) < 1 ? 0 : ((j) - 1 > h - 1 ? h - 1 : (j) - 1)) * w)     /* line[j] */
+    const float *l0 = ROW(0), *l1 = ROW(1), *l2 = ROW(2);
+    for (Py_ssize_t c = 0; c < w; c++) {
+        double t = 0.0;
+        t += (double)l0[c];
+        t += (double)l1[c];
+        t += (double)l2[c];
+        acc[c] = t;
+        out[c] = (float)(t / 3.0);
+    }
+    for (Py_ssize_t i = 1; i < h; i++) {
+        const float *add = ROW(i + 2), *sub = ROW(i - 1);
+        float *o = out + i * w;
+        for (Py_ssize_t c = 0; c < w; c++) {
+            acc[c] += (double)add[c] - (double)sub[c];
+            o[c] = (float)(acc[c] / 3.0);
+        }
+    }
+#undef ROW
+}
+
 static PyObject *py_box3(PyObject *self, PyObject *args) {
     Py_buffer ib, ob;
     Py_ssize_t h, w;
@@ -1521,7 +1547,7 @@ static PyObject *py_box3(PyObject *self, PyObject *args) {
     const float *in = ib.buf;
     float *out = ob.buf;
     Py_BEGIN_ALLOW_THREADS
-    for (Py_ssize_t c = 0; c < w; c++) box3_line(in + c, w, h, tmp + c, w, line);      /* axis 0 */
+    box3_axis0(in, h, w, tmp, line);                                                    /* axis 0 */
     for (Py_ssize_t r = 0; r < h; r++) box3_line(tmp + r * w, 1, w, out + r * w, 1, line);  /* axis 1 */
     Py_END_ALLOW_THREADS
     free(line);
@@ -1591,6 +1617,124 @@ static PyObject *py_label_runs(PyObject *self, PyObject *args) {
     PyBuffer_Release(&idx_b);
     PyBuffer_Release(&lab_b);
     return PyLong_FromLongLong((long long)n_labels);
+}
+
+/* ------------------------------------------------------------------ region_shape */
+
+/* region_shape(win (h, w) f4, out (2,) f8, h, w, cx, cy, cut): _artifacts._region_shape on
+ * a window already cut from the frame (float32).  Its 3 x 3 mean (box3, the same values);
+ * the pixels above `cut` (compared in double: the caller rounds `cut` to float32 where
+ * NumPy would compare in float32); of the 4-connected regions that reach the 5 x 5 pixels
+ * around (cx, cy), the one with the most pixels there (on a tie the one whose first pixel
+ * comes first in raster order: the smallest of scipy.ndimage.label's numbers); then its
+ * extent along and across its principal axes, (max - min + 1) of the pixels' projections
+ * on the eigenvectors of their 2 x 2 second moments (closed form: LAPACK's eigh to
+ * rounding; for a diagonal matrix the same axes, in the same order).  out = (0, 0) when no
+ * region reaches the 5 x 5, (n, 1) for one of n < 3 pixels. */
+static PyObject *py_region_shape(PyObject *self, PyObject *args) {
+    Py_buffer wb, ob;
+    Py_ssize_t h, w, cx, cy;
+    double cut;
+    if (!PyArg_ParseTuple(args, "y*w*nnnnd", &wb, &ob, &h, &w, &cx, &cy, &cut)) return NULL;
+    double *out = ob.buf;
+    Py_ssize_t n = h * w;
+    if (h < 1 || w < 1 || wb.len != (Py_ssize_t)(n * sizeof(float)) || ob.len != (Py_ssize_t)(2 * sizeof(double))
+        || cx < 0 || cx >= w || cy < 0 || cy >= h) {
+        PyBuffer_Release(&wb); PyBuffer_Release(&ob);
+        PyErr_SetString(PyExc_ValueError, "region_shape: bad sizes");
+        return NULL;
+    }
+    Py_ssize_t m = h > w ? h : w;
+    float *box = malloc(sizeof(float) * (size_t)n * 2);
+    double *line = malloc(sizeof(double) * (size_t)(m + 2));
+    int32_t *comp = malloc(sizeof(int32_t) * (size_t)n * 2);     /* region number + 1 of each pixel; a queue */
+    if (!box || !line || !comp) {
+        free(box); free(line); free(comp); PyBuffer_Release(&wb); PyBuffer_Release(&ob);
+        return PyErr_NoMemory();
+    }
+    Py_BEGIN_ALLOW_THREADS
+    const float *in = wb.buf;
+    float *tmp = box + n;
+    int32_t *queue = comp + n;
+    box3_axis0(in, h, w, tmp, line);                                                    /* axis 0 */
+    for (Py_ssize_t r = 0; r < h; r++) box3_line(tmp + r * w, 1, w, box + r * w, 1, line);  /* axis 1 */
+    memset(comp, 0, sizeof(int32_t) * (size_t)n);
+    Py_ssize_t r0 = cy - 2 > 0 ? cy - 2 : 0, r1 = cy + 3 < h ? cy + 3 : h;
+    Py_ssize_t c0 = cx - 2 > 0 ? cx - 2 : 0, c1 = cx + 3 < w ? cx + 3 : w;
+    /* the regions through the 5 x 5 (at most 25), each flooded once: its first pixel and size */
+    int32_t n_regions = 0, best = 0;
+    Py_ssize_t first[25], count[25];
+    for (Py_ssize_t r = r0; r < r1; r++) {
+        for (Py_ssize_t c = c0; c < c1; c++) {
+            Py_ssize_t i = r * w + c;
+            if (comp[i] || !((double)box[i] > cut)) continue;
+            int32_t id = ++n_regions;
+            Py_ssize_t head = 0, tail = 0, lo = i;
+            comp[i] = id;
+            queue[tail++] = (int32_t)i;
+            while (head < tail) {
+                Py_ssize_t p = queue[head++], pr = p / w, pc = p - pr * w;
+                if (p < lo) lo = p;
+                Py_ssize_t nb[4] = {pr > 0 ? p - w : -1, pc > 0 ? p - 1 : -1, pc < w - 1 ? p + 1 : -1,
+                                    pr < h - 1 ? p + w : -1};
+                for (int k = 0; k < 4; k++) {
+                    Py_ssize_t q = nb[k];
+                    if (q >= 0 && !comp[q] && (double)box[q] > cut) { comp[q] = id; queue[tail++] = (int32_t)q; }
+                }
+            }
+            first[id - 1] = lo;
+            count[id - 1] = 0;
+        }
+    }
+    out[0] = 0.0; out[1] = 0.0;
+    if (n_regions > 0) {
+        for (Py_ssize_t r = r0; r < r1; r++)
+            for (Py_ssize_t c = c0; c < c1; c++)
+                if (comp[r * w + c]) count[comp[r * w + c] - 1]++;
+        best = 1;
+        for (int32_t k = 2; k <= n_regions; k++)
+            if (count[k - 1] > count[best - 1] || (count[k - 1] == count[best - 1] && first[k - 1] < first[best - 1]))
+                best = k;
+        /* the region's pixels in raster order: their mean, then the second moments */
+        double sx = 0.0, sy = 0.0;
+        Py_ssize_t np_ = 0;
+        for (Py_ssize_t i = first[best - 1]; i < n; i++)
+            if (comp[i] == best) { sx += (double)(i % w); sy += (double)(i / w); np_++; }
+        if (np_ < 3) {
+            out[0] = (double)np_; out[1] = 1.0;
+        } else {
+            double mx = sx / (double)np_, my = sy / (double)np_, a = 0.0, b = 0.0, d = 0.0;
+            for (Py_ssize_t i = first[best - 1]; i < n; i++)
+                if (comp[i] == best) {
+                    double x = (double)(i % w) - mx, y = (double)(i / w) - my;
+                    a += x * x; b += x * y; d += y * y;
+                }
+            double ux, uy;                                  /* the major axis; the minor is (-uy, ux) */
+            if (b == 0.0) {
+                if (a > d) { ux = 1.0; uy = 0.0; } else { ux = 0.0; uy = 1.0; }
+            } else {
+                double th = 0.5 * atan2(2.0 * b, a - d);
+                ux = cos(th); uy = sin(th);
+            }
+            double pmin = INFINITY, pmax = -INFINITY, qmin = INFINITY, qmax = -INFINITY;
+            for (Py_ssize_t i = first[best - 1]; i < n; i++)
+                if (comp[i] == best) {
+                    double x = (double)(i % w) - mx, y = (double)(i / w) - my;
+                    double p = x * ux + y * uy, q = y * ux - x * uy;
+                    if (p < pmin) pmin = p;
+                    if (p > pmax) pmax = p;
+                    if (q < qmin) qmin = q;
+                    if (q > qmax) qmax = q;
+                }
+            out[0] = pmax - pmin + 1.0;
+            out[1] = qmax - qmin + 1.0;
+        }
+    }
+    Py_END_ALLOW_THREADS
+    free(box); free(line); free(comp);
+    PyBuffer_Release(&wb);
+    PyBuffer_Release(&ob);
+    Py_RETURN_NONE;
 }
 
 /* ------------------------------------------------------------------ suppress */
@@ -2163,6 +2307,7 @@ static PyMethodDef methods[] = {
     {"tap_sum", py_tap_sum, METH_VARARGS, "The line filter's shifted sums, tile by tile."},
     {"line_filter", py_line_filter, METH_VARARGS, "The whole line filter, row by row."},
     {"box3", py_box3, METH_VARARGS, "3 x 3 mean of a float32 image, edges extended."},
+    {"region_shape", py_region_shape, METH_VARARGS, "The trail test's region: its extent along and across."},
     {"label_runs", py_label_runs, METH_VARARGS, "8-connected components of sorted candidate pixels."},
     {"suppress", py_suppress, METH_VARARGS, "Greedy suppression of peaks in a stronger one's footprint."},
     {"erf_array", py_erf_array, METH_VARARGS, "erf of a float64 array."},

@@ -34,7 +34,8 @@ from shipstar.extract._scratch import scratch
 
 __all__ = ["streak_equations", "streak_fit", "gauss_fit", "gauss_normal", "block_stats", "grid_box_sums",
            "value_step", "median3", "mesh_at",
-           "candidates", "local_max", "neighbours", "tap_sum", "line_filter", "box3", "label_runs", "suppress", "erf"]
+           "candidates", "local_max", "neighbours", "tap_sum", "line_filter", "box3", "label_runs", "region_shape",
+           "suppress", "erf"]
 
 _TABLE_STEPS = 1024
 
@@ -317,6 +318,21 @@ def box3(image) -> np.ndarray:
     out = np.empty_like(image)
     _ckernels.box3(image, out, *image.shape)
     return out
+
+
+def region_shape(window, cx: int, cy: int, cut: float) -> tuple[float, float]:
+    """``(length_px, width_px)`` of the trail test's region (``_artifacts._region_shape``)
+    in ``window`` (h, w) float32, cut from the frame around the detection at pixel
+    ``(cx, cy)`` of it: the 3 x 3 mean of the window (:func:`box3`'s values), its pixels
+    above ``cut`` (compared in float64), the 4-connected region with the most pixels in the
+    5 x 5 around ``(cx, cy)``, and its extent along and across its principal axes; (0, 0)
+    when no region reaches the 5 x 5."""
+    window = np.ascontiguousarray(window, dtype=np.float32)
+    if window.ndim != 2 or min(window.shape) < 1:
+        raise ValueError(f"image of shape {window.shape}")
+    out = np.empty(2)
+    _ckernels.region_shape(window, out, *window.shape, int(cx), int(cy), float(cut))
+    return float(out[0]), float(out[1])
 
 
 def suppress(xy, order, u, along_px: float, across_px: float) -> np.ndarray:
