@@ -1169,6 +1169,71 @@ static PyObject *py_direction_info(PyObject *self, PyObject *args)
     return PyLong_FromSsize_t(bad);
 }
 
+/* mid_exposure(w (n, 3), omega (3,), alpha (3,), exposure_s, psf_sigma_px, pixel_rad, out_mid (n, 3),
+ * out_turn (n,)): pipeline._exposure.mid_exposure_vectors, star by star (its NumPy code is the
+ * reference; the same arithmetic, to rounding: NumPy's dot products and scipy's ndtr against
+ * these sums and libm's erf).  psf_sigma_px NaN: no streak model (time averages). */
+static double along_factor(double length_px, double psf_sigma_px)
+{
+    double s2 = sqrt(2.0 * (psf_sigma_px * psf_sigma_px + 1.0 / 12.0));
+    double x = fabs(length_px) / s2;
+    if (x < 0.5) return 1.0 - x * x / 10.0 + x * x * x * x / 210.0;
+    double phi0 = 1.0 / sqrt(2.0 * M_PI);
+    return 3.0 + 24.0 / (x * x) - 12.0 * (0.5 * erf(x * M_SQRT1_2)) / (x * phi0 * -expm1(-0.5 * x * x));
+}
+
+static PyObject *py_mid_exposure(PyObject *self, PyObject *args)
+{
+    Py_buffer bw, bo, ba, om_, ot;
+    double T, psf, pixel_rad;
+    if (!PyArg_ParseTuple(args, "y*y*y*dddw*w*", &bw, &bo, &ba, &T, &psf, &pixel_rad, &om_, &ot)) return NULL;
+    Py_ssize_t n = bw.len / (Py_ssize_t)(3 * sizeof(double));
+    if (bw.len != (Py_ssize_t)(3 * n * sizeof(double)) || bo.len != (Py_ssize_t)(3 * sizeof(double))
+        || ba.len != bo.len || om_.len != bw.len || ot.len != (Py_ssize_t)(n * sizeof(double))) {
+        PyBuffer_Release(&bw); PyBuffer_Release(&bo); PyBuffer_Release(&ba); PyBuffer_Release(&om_);
+        PyBuffer_Release(&ot);
+        PyErr_SetString(PyExc_ValueError, "mid_exposure: bad sizes");
+        return NULL;
+    }
+    const double *W = bw.buf, *om = bo.buf, *al = ba.buf;
+    double *mid = om_.buf, *turn = ot.buf;
+    int fitted = isfinite(psf) && isfinite(pixel_rad) && pixel_rad > 0.0;
+    double oo = om[0] * om[0] + om[1] * om[1] + om[2] * om[2], scale = T * T / 24.0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const double *wi = W + 3 * i;
+        double nw = sqrt(wi[0] * wi[0] + wi[1] * wi[1] + wi[2] * wi[2]);
+        double x = wi[0] / nw, y = wi[1] / nw, z = wi[2] / nw;
+        double wom = x * om[0] + y * om[1] + z * om[2];
+        double acc[3] = {y * al[2] - z * al[1] + (wom * om[0] - oo * x),
+                         z * al[0] - x * al[2] + (wom * om[1] - oo * y),
+                         x * al[1] - y * al[0] + (wom * om[2] - oo * z)};
+        if (fitted) {
+            double vel[3] = {y * om[2] - z * om[1], z * om[0] - x * om[2], x * om[1] - y * om[0]};
+            double speed = sqrt(vel[0] * vel[0] + vel[1] * vel[1] + vel[2] * vel[2]);
+            if (speed > 0.0) {
+                double k = along_factor(speed * T / pixel_rad, psf);
+                double e[3] = {vel[0] / speed, vel[1] / speed, vel[2] / speed};
+                double a = (k - 1.0) * (acc[0] * e[0] + acc[1] * e[1] + acc[2] * e[2]);
+                for (int c = 0; c < 3; c++) acc[c] += a * e[c];
+            }
+        }
+        double m[3] = {x - acc[0] * scale, y - acc[1] * scale, z - acc[2] * scale};
+        double nm = sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]);
+        double d2 = 0.0;
+        for (int c = 0; c < 3; c++) {
+            m[c] /= nm;
+            mid[3 * i + c] = m[c];
+        }
+        double dx = m[0] - x, dy = m[1] - y, dz = m[2] - z;
+        d2 = dx * dx + dy * dy + dz * dz;
+        double half = 0.5 * sqrt(d2);
+        turn[i] = 2.0 * asin(half < 1.0 ? half : 1.0);
+    }
+    PyBuffer_Release(&bw); PyBuffer_Release(&bo); PyBuffer_Release(&ba); PyBuffer_Release(&om_);
+    PyBuffer_Release(&ot);
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS, "solve_attitude's QUEST path (see _solve.py)"},
     {"direction_info", py_direction_info, METH_VARARGS, "direction_info (see pipeline/_sensor.py)"},
@@ -1179,6 +1244,7 @@ static PyMethodDef methods[] = {
     {"motion_fit", py_motion_fit, METH_VARARGS, "fit_motion's normal equations (see pipeline/_motion.py)"},
     {"integrity", py_integrity, METH_VARARGS, "check_integrity's weighted mean and chi2 (see pipeline/_integrity.py)"},
     {"mount_step", py_mount_step, METH_VARARGS, "one epoch of the mounts' running fit (see pipeline/_mounts.py)"},
+    {"mid_exposure", py_mid_exposure, METH_VARARGS, "mid_exposure_vectors (see pipeline/_exposure.py)"},
     {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef moddef = {PyModuleDef_HEAD_INIT, "_ckernels",

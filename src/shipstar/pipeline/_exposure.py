@@ -28,6 +28,8 @@ RMS of the 80 ms test session is the same to 0.001'').
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from shipstar.units import RAD2ASEC
@@ -173,6 +175,23 @@ def mid_exposure_vectors(w_mean, omega_rad_per_s, alpha_rad_per_s2, exposure_s: 
     turn_rad : (N,) array
         Angle between each measured and corrected direction.
     """
+    from shipstar.attitude import _ckernels
+
+    w = np.ascontiguousarray(w_mean, dtype=np.float64).reshape(-1, 3)
+    om = np.ascontiguousarray(omega_rad_per_s, dtype=np.float64).reshape(3)
+    al = np.ascontiguousarray(alpha_rad_per_s2, dtype=np.float64).reshape(3)
+    fitted = model is not None and model.fitted
+    mid, turn = np.empty_like(w), np.empty(len(w))
+    # compiled, star by star (~3 us against ~40 us for 40 stars); _mid_exposure_vectors_python
+    # is its reference (the same arithmetic, to rounding)
+    _ckernels.mid_exposure(w, om, al, float(exposure_s), model.psf_sigma_px if fitted else math.nan,
+                           model.pixel_rad if fitted else math.nan, mid, turn)
+    return mid, turn
+
+
+def _mid_exposure_vectors_python(w_mean, omega_rad_per_s, alpha_rad_per_s2, exposure_s: float,
+                                 model: StreakModel | None = None):
+    """:func:`mid_exposure_vectors` in NumPy (the compiled kernel's reference)."""
     w = np.asarray(w_mean, float).reshape(-1, 3)
     w = w / np.sqrt(np.einsum("ij,ij->i", w, w))[:, None]
     mid = w - exposure_mean_offset(w, omega_rad_per_s, alpha_rad_per_s2, exposure_s, model)
