@@ -113,6 +113,19 @@ def test_compiled_mid_exposure_directions_are_the_numpy_reference():
     assert n_short > 20 and n_long > 200                 # both branches of k were met
 
 
+def test_the_smear_hints_cross_product_is_numpys_bit_for_bit():
+    """The smear prediction's and its check's ``omega x u0`` (``pipeline._sensor._cross3``,
+    for two 3-vectors, 18 x faster than ``np.cross``) are NumPy's numbers to the bit, over
+    magnitudes from 1e-8 to 1e3 and signs of every kind."""
+    from shipstar.pipeline._sensor import _cross3
+
+    rng = np.random.default_rng(83)
+    a = rng.normal(size=(3000, 3)) * 10.0 ** rng.uniform(-8, 3, (3000, 3))
+    b = rng.normal(size=(3000, 3)) * 10.0 ** rng.uniform(-8, 3, (3000, 3))
+    got = np.array([_cross3(x, y) for x, y in zip(a, b)])
+    np.testing.assert_array_equal(got, np.cross(a, b))
+
+
 def _rot(e):
     from scipy.spatial.transform import Rotation
 

@@ -282,6 +282,14 @@ class FrameResult:
                            sigma_rad=h.sigma_rad[keep], info_per_rad2=info, model_covariance_rad2=model)
 
 
+def _cross3(a, b) -> np.ndarray:
+    """``np.cross(a, b)`` of two 3-vectors, the same numbers (each component one product
+    less another, rounded as NumPy rounds them), in ~1 us against NumPy's ~18 us."""
+    a0, a1, a2 = (float(x) for x in a)
+    b0, b1, b2 = (float(x) for x in b)
+    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
+
+
 def direction_info(camera, xy_px, cov_px2, shape=None, w_sensor=None, floor_px: float = 0.0):
     """Information matrices of the directions ``camera.unproject(xy_px)`` whose centroids
     have covariances ``cov_px2`` (N, 2, 2), times the error shape ``shape`` (2, 2), plus a
@@ -559,7 +567,7 @@ class SensorProcessor:
             return None
         omega = fit.omega_at(t_s)
         u0 = self._centre_u
-        d = np.cross(omega, u0) * (0.5 * exposure_s)                 # u(t) = u0 - (omega x u0) t
+        d = _cross3(omega, u0) * (0.5 * exposure_s)                  # u(t) = u0 - (omega x u0) t
         ends = self.config.camera.project(np.array([u0 + d, u0 - d]))
         smear = ends[1] - ends[0]
         if not np.all(np.isfinite(smear)):
@@ -579,7 +587,7 @@ class SensorProcessor:
         if predicted is None or predicted.t_s != t_s:
             return
         cam = self.config.camera
-        d = np.cross(np.asarray(omega_rad_per_s, float) - predicted.omega_rad_per_s, self._centre_u)
+        d = _cross3(np.asarray(omega_rad_per_s, float) - predicted.omega_rad_per_s, self._centre_u)
         error_px = math.sqrt(float(d @ d)) * predicted.exposure_s * cam.f_mm / cam.pixel_mm
         if math.isfinite(error_px):
             self._hint_errors.append((error_px, predicted.gap_s))
