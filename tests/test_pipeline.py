@@ -621,7 +621,8 @@ def test_streak_correction_at_80_ms_centroid_level():
 
 def test_streak_correction_on_rendered_80_ms_frames():
     """Image level, the curved-path renderer (each star drawn along its true path during the
-    80 ms exposure) at the sea session's peak roll acceleration (t = 1.5-2.2 s, after 0.9 s of frames for the motion fit): extraction,
+    80 ms exposure) at the sea session's peak roll acceleration (t = 1.5-2.2 s, after 0.9 s
+    of frames for the motion fit): extraction,
     identification, the deck rate from the frames and the correction.  Each epoch's joint
     attitude moves by the predicted -alpha T^2 / 24 (within 0.2''), and the joint pitch and
     roll RMS drop from the bias level to below 1.2''."""
@@ -752,3 +753,16 @@ def test_one_rotation_vector_is_the_batch_formula():
     one = np.array([rotvec(C) for C in Cs])
     np.testing.assert_allclose(one, ref, rtol=0, atol=1e-15)
     assert np.array_equal(rotvec(np.eye(3)), np.zeros(3))
+
+
+def test_motion_fit_counts_distinct_times_as_numpy_unique():
+    """``fit_motion`` lowers its degree by the number of distinct sample times: counted as
+    ``len(np.unique(t))`` counts them (``-0.0`` and ``0.0`` one value, NaNs one, infinities),
+    without sorting (``pipeline._motion._n_distinct``)."""
+    from shipstar.pipeline._motion import _n_distinct
+
+    rng = np.random.default_rng(3)
+    pool = [0.0, -0.0, 0.1, 0.2, np.nan, 1e9, np.inf, -np.inf, 0.1 + 0.2, 0.3]
+    for _ in range(3000):
+        t = rng.choice(pool, int(rng.integers(0, 20)))
+        assert _n_distinct(t) == len(np.unique(t)), t

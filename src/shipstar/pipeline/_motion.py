@@ -190,7 +190,7 @@ def fit_motion(t_s, C_hor_from_body, covariance_rad2, *, degree: int = MOTION_DE
         None with fewer than :data:`MIN_MOTION_SAMPLES` distinct times.
     """
     t = np.ascontiguousarray(t_s, dtype=float).reshape(-1)
-    n_times = len(np.unique(t))
+    n_times = _n_distinct(t)
     if n_times < MIN_MOTION_SAMPLES:
         return None
     deg = min(int(degree), (n_times - 1) // 2)
@@ -205,6 +205,14 @@ def fit_motion(t_s, C_hor_from_body, covariance_rad2, *, degree: int = MOTION_DE
                                                                 _FLOOR_RAD2, coef)):
         coef = _coefficients_python(t, C, P, newest, deg, scale_s)
     return MotionFit(t_ref, float(scale_s), C[newest].copy(), coef, float(t.min()), t_ref, len(t))
+
+
+def _n_distinct(t) -> int:
+    """``len(np.unique(t))`` of a few sample times (NaNs count as one value, as there), in
+    ~1 us against ~10 us."""
+    values = t.tolist()
+    distinct = {v for v in values if v == v}
+    return len(distinct) + (len(distinct) < len(values) and any(v != v for v in values))
 
 
 #: the sigma floor as a variance (rad^2)
