@@ -740,7 +740,8 @@ static int trk_fit(const Track *T, const unsigned char *keep, double *theta, dou
 {
     int idx[TRK_NP], n = 0;
     for (int i = 0; i < TRK_NP; i++) if (keep[i]) idx[n++] = i;
-    double A[TRK_NP * TRK_NP], Nk[TRK_NP * TRK_NP], bk[TRK_NP], C[TRK_NP * TRK_NP], th[TRK_NP], tr = 0.0;
+    /* (A zeroed: gcc cannot see that gj_inverse reads only the n x n written below) */
+    double A[TRK_NP * TRK_NP] = {0}, Nk[TRK_NP * TRK_NP], bk[TRK_NP], C[TRK_NP * TRK_NP], th[TRK_NP], tr = 0.0;
     for (int i = 0; i < n; i++) {
         bk[i] = T->b[idx[i]];
         for (int j = 0; j < n; j++) Nk[n * i + j] = T->N[TRK_NP * idx[i] + idx[j]];
