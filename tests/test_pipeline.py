@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import sys
 from dataclasses import replace
 
 import numpy as np
@@ -742,6 +743,54 @@ def test_compiled_motion_fit_matches_the_numpy_least_squares():
     singular = np.tile(-_motion._FLOOR_RAD2 * np.eye(3), (6, 1, 1))          # plus the floor: 0
     with pytest.raises(np.linalg.LinAlgError):
         _motion.fit_motion(np.arange(6) * 0.1, m.C_hor_from_deck(np.arange(6) * 0.1), singular)
+
+
+def test_the_rate_asked_again_at_the_same_time_is_the_same_and_its_own_copy():
+    """MotionFit.omega_at keeps its last answer (an epoch asks ~3 times at its time): the
+    same numbers as a fresh computation, each call its own array."""
+    from shipstar.pipeline._motion import MotionFit
+
+    t = 2.0
+    fit = _motion_window(sea_session().motion, t).fit(t, sources=[0])
+    fresh = MotionFit(fit.t_ref_s, fit.scale_s, fit.C_ref, fit.coef, fit.t_first_s, fit.t_last_s, fit.n_samples)
+    a = fit.omega_at(t)
+    a[:] = 0.0                                            # a caller's change stays its own
+    b = fit.omega_at(t)
+    np.testing.assert_array_equal(b, fresh.omega_at(t))
+    assert np.linalg.norm(b) > 0.0
+    np.testing.assert_array_equal(fit.omega_at(t - 0.05), fresh.omega_at(t - 0.05))   # another time
+    np.testing.assert_array_equal(fit.omega_at(t), b)
+
+
+def test_the_engines_quick_replace_is_dataclasses_replace():
+    from dataclasses import fields, replace
+
+    from shipstar.pipeline._engine import Emission, _replaced
+
+    e = Emission((1, 2), "epoch", ("w",), (0.0, 0.1))
+    for changes in ({"epoch": "other"}, {"warnings": (), "frame_shifts_s": (0.5,)}):
+        a, b = _replaced(e, **changes), replace(e, **changes)
+        assert type(a) is Emission and a is not e
+        assert [getattr(a, f.name) for f in fields(Emission)] == [getattr(b, f.name) for f in fields(Emission)]
+    assert e.epoch == "epoch"                             # the original unchanged
+    with pytest.raises(TypeError, match="no field"):
+        _replaced(e, epoc="typo")
+
+
+def test_a_workers_warm_up_loads_what_its_first_frame_needs():
+    """load_shared_data (a worker's start; measure-archive's driver before it forks its
+    LocalCluster) also parses the Earth orientation table and imports the frame's modules,
+    so that a forked worker's first frame does not (~0.13 s each)."""
+    import subprocess
+
+    code = ("import sys; from shipstar.pipeline._measure import load_shared_data, FRAME_MODULES; "
+            "from shipstar.sky import eop; "
+            "assert eop._table.cache_info().currsize == 0; "
+            "assert not any(m in sys.modules for m in FRAME_MODULES if m.startswith('shipstar.extract')); "
+            "load_shared_data([]); "
+            "assert eop._table.cache_info().currsize == 1; "
+            "missing = [m for m in FRAME_MODULES if m not in sys.modules]; assert not missing, missing")
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
 
 
 def test_one_rotation_vector_is_the_batch_formula():

@@ -276,13 +276,16 @@ def fuse_joint(sensors: Sequence[SensorStars], *, reject_outliers: bool = True) 
 
     if len(sensors) == 0:
         return ShipAttitude.failed("no sensor data", "joint")
-    w_deck, v_hor, sigma = [], [], []
+    w_deck, v_hor, sigma, turned = [], [], [], []
     for s in sensors:
         w = np.atleast_2d(np.asarray(s.w_sensor, float))
         v = np.atleast_2d(np.asarray(s.v_hor, float))
         if w.shape != v.shape or w.shape[-1] != 3:
             raise ShipstarError(f"sensor star arrays must both be (N, 3), got {w.shape} and {v.shape}")
-        w_deck.append(w @ np.asarray(s.C_deck_from_sensor, float).T)
+        C_ds = np.asarray(s.C_deck_from_sensor, float)
+        wd_info = _turned_to_deck(w, s.info_per_rad2, C_ds)
+        w_deck.append(w @ C_ds.T if wd_info is None else wd_info[0])
+        turned.append(None if wd_info is None else wd_info[1])
         v_hor.append(v)
         sigma.append(per_vector(s.sigma_rad, w.shape[0]))
     w_all, v_all, sig_all = np.concatenate(w_deck), np.concatenate(v_hor), np.concatenate(sigma)
@@ -291,7 +294,7 @@ def fuse_joint(sensors: Sequence[SensorStars], *, reject_outliers: bool = True) 
     # needed besides only to eliminate mount errors (the common-mode term of isotropic
     # stars uses their sigmas)
     mounts = any(s.mount_covariance_rad2 is not None for s in sensors)
-    info = _deck_information(sensors, w_deck, sigma) if anisotropic or mounts else None
+    info = _deck_information(sensors, w_deck, sigma, turned) if anisotropic or mounts else None
     sol = solve_attitude(w_all, v_all, sigma_rad=sig_all, reject_outliers=reject_outliers,
                          info_per_rad2=info if anisotropic else None)
     if not sol.solved:
@@ -303,12 +306,37 @@ def fuse_joint(sensors: Sequence[SensorStars], *, reject_outliers: bool = True) 
     return _from_C(sol.C_ref_from_body, cov, "joint", int(sol.n_used))
 
 
-def _deck_information(sensors, w_deck, sigma) -> np.ndarray:
+def _turned_to_deck(w, info, C_ds):
+    """``(w C_ds^T, C_ds info C_ds^T)`` of a sensor whose stars have information matrices
+    (``info`` (N, 3, 3)), in one compiled call (``attitude._ckernels.sensor_rows``, equal
+    to NumPy's products to rounding); None without them (or not (N, 3, 3) finite arrays:
+    the NumPy path checks and words the error)."""
+    from shipstar.attitude import _ckernels
+
+    if info is None or C_ds.shape != (3, 3):
+        return None
+    W = np.ascontiguousarray(info, dtype=float)
+    n = w.shape[0]
+    if W.shape != (n, 3, 3):
+        return None
+    wd, Wd = np.empty((n, 3)), np.empty((n, 3, 3))
+    _ckernels.sensor_rows(np.ascontiguousarray(w), W, _EMPTY, np.arange(n, dtype=np.int64),
+                          np.ascontiguousarray(C_ds), wd, Wd, _EMPTY)
+    return wd, Wd
+
+
+_EMPTY = np.empty(0)
+
+
+def _deck_information(sensors, w_deck, sigma, turned=None) -> np.ndarray:
     """(N, 3, 3) information matrices (rad^-2, deck axes) of every sensor's stars, stacked:
-    ``sigma^-2 (I - w w^T)`` for isotropic stars, ``C_ds F C_ds^T`` for given ones."""
+    ``sigma^-2 (I - w w^T)`` for isotropic stars, ``C_ds F C_ds^T`` for given ones
+    (``turned``: per sensor, that product already made, or None)."""
     info = []
-    for s, wd_s, sig in zip(sensors, w_deck, sigma):
-        if s.info_per_rad2 is None:            # isotropic: sigma^-2 (I - w w^T)
+    for k, (s, wd_s, sig) in enumerate(zip(sensors, w_deck, sigma)):
+        if turned is not None and turned[k] is not None:
+            info.append(turned[k])
+        elif s.info_per_rad2 is None:            # isotropic: sigma^-2 (I - w w^T)
             wd = wd_s / np.linalg.norm(wd_s, axis=1, keepdims=True)
             info.append(sig[:, None, None] ** -2 * (np.eye(3) - wd[:, :, None] * wd[:, None, :]))
         else:
@@ -381,7 +409,36 @@ def _common_mode_covariance(sensors, sol, info, sigma, w_deck) -> np.ndarray:
     """``sum_s P F_s M_s F_s P`` (3, 3, deck axes): each sensor's common-mode error ``M_s``
     (``SensorStars.model_covariance_rad2`` in deck axes) through the joint solution, whose
     attitude moves by ``P F_s d`` when that sensor's stars all turn by ``d`` (``P`` the
-    joint covariance, ``F_s`` the information of the sensor's inlier stars)."""
+    joint covariance, ``F_s`` the information of the sensor's inlier stars).
+
+    Each sensor's term by the compiled kernel (``attitude._ckernels.common_mode``: ~6 us
+    a call against ~45 us for :func:`_common_mode_covariance_python`, the reference,
+    equal to rounding), the NumPy path where the kernel declines (a singular mount term).
+    """
+    from shipstar.attitude import _ckernels
+
+    if not any(s.model_covariance_rad2 is not None for s in sensors):
+        return np.zeros((3, 3))
+    f64 = np.ascontiguousarray
+    aniso = sol.info_per_rad2 is not None
+    w = f64(w_deck, dtype=float)
+    W = f64(sol.info_per_rad2, dtype=float) if aniso else _EMPTY
+    sig = _EMPTY if aniso else f64(sigma, dtype=float)
+    P = f64(sol.covariance_rad2, dtype=float)
+    out = np.zeros((3, 3))
+    for s, keep in _inlier_rows(sensors, sol.inliers):
+        if s.model_covariance_rad2 is None:
+            continue
+        K = s.mount_covariance_rad2
+        if not _ckernels.common_mode(w, W, sig, keep.astype(np.int64, copy=False), P,
+                                     f64(s.C_deck_from_sensor, dtype=float), f64(s.model_covariance_rad2, dtype=float),
+                                     _EMPTY if K is None else f64(K, dtype=float), out):
+            return _common_mode_covariance_python(sensors, sol, info, sigma, w_deck)
+    return 0.5 * (out + out.T)
+
+
+def _common_mode_covariance_python(sensors, sol, info, sigma, w_deck) -> np.ndarray:
+    """:func:`_common_mode_covariance` in NumPy (the reference of the compiled kernel)."""
     from shipstar.attitude._solve import _fisher_body
 
     out = np.zeros((3, 3))

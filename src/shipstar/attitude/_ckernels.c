@@ -1235,6 +1235,142 @@ static PyObject *py_mid_exposure(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
+/* common_mode(w (N, 3), W (N, 3, 3) or empty, sigma (N,), rows (m,) int64, P (3, 3),
+ *             R (3, 3), Mmodel (3, 3), Mmount (3, 3) or empty, out (3, 3)) -> 1, or 0 (nothing
+ * added: I + Mmount F singular, the caller's NumPy path decides).  One sensor's term of
+ * shipstar.ship._common_mode_covariance, added to out: F = sum over ``rows`` of the
+ * information about the deck axes of the unit direction u_i = w_i / |w_i| -- [u_i]x^T W_i
+ * [u_i]x with information matrices, sigma_i^-2 (I - u_i u_i^T) without -- then with a mount's
+ * covariance F (I + Mmount F)^-1, G = P F and out += G (R Mmodel R^T) G^T.  The same algebra
+ * as the NumPy path, its 3 x 3 products summed in another order (equal to rounding). */
+static PyObject *py_common_mode(PyObject *self, PyObject *args)
+{
+    Py_buffer bw, bW, bs, br, bP, bR, bM, bK, oo;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*y*w*", &bw, &bW, &bs, &br, &bP, &bR, &bM, &bK, &oo)) return NULL;
+    Py_ssize_t N = bw.len / (Py_ssize_t)(3 * sizeof(double)), m = br.len / (Py_ssize_t)sizeof(int64_t);
+    int aniso = bW.len > 0, mount = bK.len > 0;
+    const Py_ssize_t s9 = (Py_ssize_t)(9 * sizeof(double));
+    int bad = bw.len != (Py_ssize_t)(3 * N * sizeof(double)) || br.len != (Py_ssize_t)(m * sizeof(int64_t))
+        || (aniso ? bW.len != (Py_ssize_t)(9 * N * sizeof(double)) : bs.len != (Py_ssize_t)(N * sizeof(double)))
+        || bP.len != s9 || bR.len != s9 || bM.len != s9 || (mount && bK.len != s9) || oo.len != s9;
+    const int64_t *rows = br.buf;
+    for (Py_ssize_t k = 0; k < m && !bad; k++) bad = rows[k] < 0 || rows[k] >= N;
+    if (bad) {
+        PyBuffer_Release(&bw); PyBuffer_Release(&bW); PyBuffer_Release(&bs); PyBuffer_Release(&br);
+        PyBuffer_Release(&bP); PyBuffer_Release(&bR); PyBuffer_Release(&bM); PyBuffer_Release(&bK);
+        PyBuffer_Release(&oo);
+        PyErr_SetString(PyExc_ValueError, "common_mode: bad sizes or rows");
+        return NULL;
+    }
+    const double *w = bw.buf, *Wa = bW.buf, *sg = bs.buf, *P = bP.buf, *R = bR.buf, *Mm = bM.buf, *K = bK.buf;
+    double *out = oo.buf;
+    double F[9] = {0}, Fm[9], G[9], Q[9], T[9], X[9], Xi[9];
+    int ok = 1;
+    for (Py_ssize_t k = 0; k < m; k++) {
+        const double *wi = w + 3 * rows[k];
+        double n = sqrt(wi[0] * wi[0] + wi[1] * wi[1] + wi[2] * wi[2]);
+        double u[3] = {wi[0] / n, wi[1] / n, wi[2] / n};
+        if (aniso) {
+            /* [u]x^T W [u]x = -[u]x W [u]x */
+            const double *Wi = Wa + 9 * rows[k];
+            double S[9] = {0.0, -u[2], u[1], u[2], 0.0, -u[0], -u[1], u[0], 0.0}, WS[9];
+            for (int i = 0; i < 3; i++)
+                for (int j = 0; j < 3; j++)
+                    WS[3 * i + j] = Wi[3 * i] * S[j] + Wi[3 * i + 1] * S[3 + j] + Wi[3 * i + 2] * S[6 + j];
+            for (int i = 0; i < 3; i++)
+                for (int j = 0; j < 3; j++)
+                    F[3 * i + j] += S[i] * WS[j] + S[3 + i] * WS[3 + j] + S[6 + i] * WS[6 + j];
+        } else {
+            double s2 = 1.0 / (sg[rows[k]] * sg[rows[k]]);
+            for (int i = 0; i < 3; i++)
+                for (int j = 0; j < 3; j++)
+                    F[3 * i + j] += s2 * ((i == j ? 1.0 : 0.0) - u[i] * u[j]);
+        }
+    }
+    if (mount) {                                             /* F (I + K F)^-1 */
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++)
+                X[3 * i + j] = (i == j ? 1.0 : 0.0) + K[3 * i] * F[j] + K[3 * i + 1] * F[3 + j] + K[3 * i + 2] * F[6 + j];
+        if (!gj_inverse(X, 3, Xi)) ok = 0;
+        else {
+            for (int i = 0; i < 3; i++)
+                for (int j = 0; j < 3; j++)
+                    Fm[3 * i + j] = F[3 * i] * Xi[j] + F[3 * i + 1] * Xi[3 + j] + F[3 * i + 2] * Xi[6 + j];
+            memcpy(F, Fm, sizeof F);
+        }
+    }
+    if (ok) {
+        for (int i = 0; i < 3; i++)                          /* G = P F, T = R Mmodel */
+            for (int j = 0; j < 3; j++) {
+                G[3 * i + j] = P[3 * i] * F[j] + P[3 * i + 1] * F[3 + j] + P[3 * i + 2] * F[6 + j];
+                T[3 * i + j] = R[3 * i] * Mm[j] + R[3 * i + 1] * Mm[3 + j] + R[3 * i + 2] * Mm[6 + j];
+            }
+        for (int i = 0; i < 3; i++)                          /* Q = T R^T */
+            for (int j = 0; j < 3; j++)
+                Q[3 * i + j] = T[3 * i] * R[3 * j] + T[3 * i + 1] * R[3 * j + 1] + T[3 * i + 2] * R[3 * j + 2];
+        for (int i = 0; i < 3; i++)                          /* T = G Q */
+            for (int j = 0; j < 3; j++)
+                T[3 * i + j] = G[3 * i] * Q[j] + G[3 * i + 1] * Q[3 + j] + G[3 * i + 2] * Q[6 + j];
+        for (int i = 0; i < 3; i++)                          /* out += T G^T */
+            for (int j = 0; j < 3; j++)
+                out[3 * i + j] += T[3 * i] * G[3 * j] + T[3 * i + 1] * G[3 * j + 1] + T[3 * i + 2] * G[3 * j + 2];
+    }
+    PyBuffer_Release(&bw); PyBuffer_Release(&bW); PyBuffer_Release(&bs); PyBuffer_Release(&br);
+    PyBuffer_Release(&bP); PyBuffer_Release(&bR); PyBuffer_Release(&bM); PyBuffer_Release(&bK);
+    PyBuffer_Release(&oo);
+    return PyLong_FromLong(ok);
+}
+
+/* sensor_rows(w (N, 3), info (N, 3, 3) or empty, model (3, 3) or empty, rows (m,) int64, R (3, 3),
+ *             out_w (m, 3), out_info (m, 3, 3) or empty, out_model (3, 3) or empty): the rows
+ * ``rows`` of a frame's star directions turned by R (out_w = w[rows] R^T) with their
+ * information matrices (R info[rows] R^T) and the model covariance (R model R^T):
+ * shipstar.pipeline._sensor.FrameResult.sensor_stars in one call, its NumPy products
+ * summed in another order (equal to rounding). */
+static void rot_sandwich(const double *R, const double *A, double *out)     /* R A R^T */
+{
+    double T[9];
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            T[3 * i + j] = R[3 * i] * A[j] + R[3 * i + 1] * A[3 + j] + R[3 * i + 2] * A[6 + j];
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            out[3 * i + j] = T[3 * i] * R[3 * j] + T[3 * i + 1] * R[3 * j + 1] + T[3 * i + 2] * R[3 * j + 2];
+}
+
+static PyObject *py_sensor_rows(PyObject *self, PyObject *args)
+{
+    Py_buffer bw, bi, bm, br, bR, ow, oi, om;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*w*w*w*", &bw, &bi, &bm, &br, &bR, &ow, &oi, &om)) return NULL;
+    Py_ssize_t N = bw.len / (Py_ssize_t)(3 * sizeof(double)), m = br.len / (Py_ssize_t)sizeof(int64_t);
+    const Py_ssize_t s9 = (Py_ssize_t)(9 * sizeof(double));
+    int info = bi.len > 0, model = bm.len > 0;
+    int bad = bw.len != (Py_ssize_t)(3 * N * sizeof(double)) || br.len != (Py_ssize_t)(m * sizeof(int64_t))
+        || (info && bi.len != N * s9) || (model && bm.len != s9) || bR.len != s9
+        || ow.len != (Py_ssize_t)(3 * m * sizeof(double)) || oi.len != (info ? m * s9 : 0)
+        || om.len != (model ? s9 : 0);
+    const int64_t *rows = br.buf;
+    for (Py_ssize_t k = 0; k < m && !bad; k++) bad = rows[k] < 0 || rows[k] >= N;
+    if (!bad) {
+        const double *w = bw.buf, *I = bi.buf, *R = bR.buf;
+        double *outw = ow.buf, *outi = oi.buf;
+        for (Py_ssize_t k = 0; k < m; k++) {
+            const double *wi = w + 3 * rows[k];
+            for (int i = 0; i < 3; i++)
+                outw[3 * k + i] = wi[0] * R[3 * i] + wi[1] * R[3 * i + 1] + wi[2] * R[3 * i + 2];
+            if (info) rot_sandwich(R, I + 9 * rows[k], outi + 9 * k);
+        }
+        if (model) rot_sandwich(R, bm.buf, om.buf);
+    }
+    PyBuffer_Release(&bw); PyBuffer_Release(&bi); PyBuffer_Release(&bm); PyBuffer_Release(&br);
+    PyBuffer_Release(&bR); PyBuffer_Release(&ow); PyBuffer_Release(&oi); PyBuffer_Release(&om);
+    if (bad) {
+        PyErr_SetString(PyExc_ValueError, "sensor_rows: bad sizes or rows");
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"solve", py_solve, METH_VARARGS, "solve_attitude's QUEST path (see _solve.py)"},
     {"direction_info", py_direction_info, METH_VARARGS, "direction_info (see pipeline/_sensor.py)"},
@@ -1246,6 +1382,8 @@ static PyMethodDef methods[] = {
     {"integrity", py_integrity, METH_VARARGS, "check_integrity's weighted mean and chi2 (see pipeline/_integrity.py)"},
     {"mount_step", py_mount_step, METH_VARARGS, "one epoch of the mounts' running fit (see pipeline/_mounts.py)"},
     {"mid_exposure", py_mid_exposure, METH_VARARGS, "mid_exposure_vectors (see pipeline/_exposure.py)"},
+    {"sensor_rows", py_sensor_rows, METH_VARARGS, "FrameResult.sensor_stars's turned rows (see pipeline/_sensor.py)"},
+    {"common_mode", py_common_mode, METH_VARARGS, "one sensor's term of _common_mode_covariance (see ship.py)"},
     {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef moddef = {PyModuleDef_HEAD_INIT, "_ckernels",

@@ -146,8 +146,14 @@ class MotionFit:
 
     def omega_at(self, t_s: float) -> np.ndarray:
         """Angular velocity (3,) rad/s of the body relative to the horizontal frame, body axes."""
-        r, rd = self.r(t_s), self.r(t_s, 1)
-        return rd - 0.5 * _cross(r, rd)
+        t = float(t_s)
+        last = self.__dict__.get("_omega_last")     # an epoch asks ~3 times at its time (15 us each)
+        if last is not None and last[0] == t:
+            return last[1].copy()
+        r, rd = self.r(t), self.r(t, 1)
+        out = rd - 0.5 * _cross(r, rd)
+        object.__setattr__(self, "_omega_last", (t, out))
+        return out.copy()
 
     def alpha_at(self, t_s: float) -> np.ndarray:
         """Angular acceleration (3,) rad/s^2, body axes (derivative of :meth:`omega_at`)."""
