@@ -363,3 +363,25 @@ def test_simulated_frames_read_back_at_their_mid_exposure_time(tmp_path):
     assert _seconds_apart(info, (frame.utc_jd1, frame.utc_jd2)) < 1e-6
     image, jd = read_fits_frame(path)
     np.testing.assert_array_equal(image, frame.image)
+
+
+def test_remembered_card_values_are_the_parsed_ones():
+    """_card_value_of (the quick scan's remembered parse of a card's bytes) gives what
+    _card_value gives for the decoded card, again and again: quoted strings with ''
+    escapes, T/F, numbers with comments, non-ASCII bytes."""
+    from shipstar._fitsio import _card_value, _card_value_of
+
+    cards = [b"SENSOR  = 'A1      '           / sensor name",
+             b"OBJECT  = 'it''s   '",
+             b"SIMPLE  =                    T",
+             b"EXTEND  =                    F / no",
+             b"EXPTIME =                 0.08 / s",
+             b"SITELAT = '+31 54 00'",
+             b"INSTRUME= 'caf\xe9'",
+             b"NAXIS1  =                 1024"]
+    for card in cards:
+        card = card.ljust(80)
+        want = _card_value(card.decode("ascii", "replace"))
+        for _ in range(2):
+            got = _card_value_of(card)
+            assert got == want and type(got) is type(want)
