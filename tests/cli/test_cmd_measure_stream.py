@@ -151,6 +151,17 @@ def test_resume_refuses_other_input(night, reference, tmp_path):
     proc.wait(30)
     bad = _run(night, "--out", str(out), "--chunk-s", "0.5", "--workers", "1", "--resume")
     assert bad.returncode == 2 and len(bad.stderr.splitlines()) == 1 and "chunk_s" in bad.stderr
+    # another Earth orientation table (here 0.1 ms of 1973's UT1 - UTC): the rows after the
+    # resume would not be those of the rows before it
+    from pathlib import Path
+
+    from astropy_iers_data import IERS_A_FILE
+
+    first, rest = Path(IERS_A_FILE).read_bytes().split(b"\n", 1)
+    table = tmp_path / "finals.all"
+    table.write_bytes(first[:154] + first[154:165].replace(b".8075000", b".8076000") + first[165:] + b"\n" + rest)
+    eop = _run(night, "--out", str(out), "--chunk-s", "0.4", "--workers", "1", "--resume", "--eop", str(table))
+    assert eop.returncode == 2 and len(eop.stderr.splitlines()) == 1 and "eop_digest" in eop.stderr, eop.stderr
     nothing = _run(night, "--out", str(tmp_path / "never.csv"), "--resume")
     assert nothing.returncode == 2 and "nothing was stopped" in nothing.stderr
     assert (tmp_path / "att.csv.partial").exists() and os.path.getsize(tmp_path / "att.csv.partial") > 0

@@ -236,3 +236,42 @@ def test_earth_orientation_validation(kwargs, match):
     base.update(kwargs)
     with pytest.raises(ShipstarError, match=match):
         EarthOrientation(**base)
+
+
+# ---------------------------------------------------------------------------------------
+# The table's identity (what a worker of another machine checks)
+# ---------------------------------------------------------------------------------------
+
+def altered_table_copy(path, *, change_ut1: bool):
+    """A copy of the packaged IERS-A table at ``path``: byte for byte, or with its first
+    row's UT1 - UTC (1973, Bulletin B: the value used) 0.1 ms larger."""
+    from pathlib import Path
+
+    from astropy_iers_data import IERS_A_FILE
+
+    raw = Path(IERS_A_FILE).read_bytes()
+    if change_ut1:
+        first, rest = raw.split(b"\n", 1)
+        field = first[154:165]
+        assert field.strip() == b".8075000"
+        first = first[:154] + field.replace(b".8075000", b".8076000") + first[165:]
+        raw = first + b"\n" + rest
+    path.write_bytes(raw)
+    return path
+
+
+def test_the_tables_identity_is_its_content_not_its_place(tmp_path, monkeypatch):
+    monkeypatch.delenv(eop_mod.EOP_FILE_ENV, raising=False)
+    packaged_source, packaged = eop_mod.eop_identity()
+    try:
+        same = altered_table_copy(tmp_path / "same.all", change_ut1=False)
+        eop_mod.set_eop_file(same)
+        source, digest = eop_mod.eop_identity()
+        assert source == str(same) and digest == packaged and source != packaged_source
+        other = altered_table_copy(tmp_path / "other.all", change_ut1=True)
+        eop_mod.set_eop_file(other)
+        assert eop_mod.eop_identity() == (str(other), eop_mod.eop_identity()[1])
+        assert eop_mod.eop_identity()[1] != packaged                  # 0.1 ms of UT1 in 1973
+    finally:
+        eop_mod.set_eop_file(None)
+    assert eop_mod.eop_identity() == (packaged_source, packaged)

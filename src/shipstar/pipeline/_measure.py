@@ -75,6 +75,14 @@ class MeasureJob:
     smooth_lag_s : float
         The engine's fixed lag for the mounts' flexure estimate (s, 0: causal;
         :class:`~shipstar.pipeline._engine.SessionEngine`).
+    eop_file : str or None
+        The Earth orientation table the run was started with (``--eop FILE``, absolute;
+        None: the packaged one), made the one in use by every process that runs a task.
+    eop_digest : str
+        That table's :func:`~shipstar.sky.eop.eop_identity` digest: a task on a process
+        whose table is another (a remote Dask worker with another astropy-iers-data, or
+        another file at that path) fails with a one-line error rather than giving other
+        rows.  Empty: not checked.
     """
 
     configs: tuple
@@ -84,6 +92,34 @@ class MeasureJob:
     start_utc_jd: tuple
     reference: int = 0
     smooth_lag_s: float = 0.0
+    eop_file: str | None = None
+    eop_digest: str = ""
+
+
+def job_eop() -> dict:
+    """``MeasureJob``'s ``eop_file`` and ``eop_digest`` of this process's table now."""
+    from shipstar.sky.eop import EOP_FILE_ENV, eop_identity
+
+    return {"eop_file": os.environ.get(EOP_FILE_ENV) or None, "eop_digest": eop_identity()[1]}
+
+
+def use_job_eop(job: MeasureJob) -> None:
+    """Make ``job``'s Earth orientation table the one in use here (a worker of another
+    machine, started without ``--eop``), and check it is the same table (raises
+    ShipstarError, one line: that file missing here, or another table)."""
+    digest = getattr(job, "eop_digest", "")
+    if not digest:
+        return
+    from shipstar.sky.eop import EOP_FILE_ENV, eop_identity, set_eop_file
+
+    if (os.environ.get(EOP_FILE_ENV) or None) != job.eop_file:
+        set_eop_file(job.eop_file)
+    source, here = eop_identity()
+    if here != digest:
+        wanted = job.eop_file or "the packaged astropy-iers-data table"
+        raise ShipstarError(f"this process's Earth orientation table ({source}) is not the one the run was started "
+                            f"with ({wanted}): give --eop FILE on a file system every worker reads, or install the "
+                            f"same astropy-iers-data everywhere")
 
 
 @dataclass(frozen=True, eq=False)
@@ -193,6 +229,7 @@ def process_chunk(job: MeasureJob, sensor: int, piece, lo: int, keep_from: int, 
     from shipstar.errors import AccuracyWarning
     from shipstar.pipeline._sensor import SensorProcessor
 
+    use_job_eop(job)
     proc = SensorProcessor(job.configs[sensor], job.track, job.weather, job.options)
     out, held, n_caught = [], [], 0
     with warnings.catch_warnings(record=True) as caught:
@@ -286,7 +323,7 @@ def _fingerprint(job: MeasureJob, sources, chunk_s: float) -> dict:
     return {"sensors": [c.name for c in job.configs], "n_frames": [int(len(t[0])) for t in times],
             "first_last_utc_jd": [[float(t[0][0] + t[1][0]), float(t[0][-1] + t[1][-1])] for t in times],
             "start_utc_jd": list(job.start_utc_jd), "reference": job.reference, "chunk_s": chunk_s,
-            "smooth_lag_s": job.smooth_lag_s,
+            "smooth_lag_s": job.smooth_lag_s, "eop_digest": job.eop_digest,
             "options": repr(job.options),
             "installations": [repr(c.installation) for c in job.configs],
             "cameras": [repr(c.camera) for c in job.configs]}

@@ -39,6 +39,7 @@ import functools
 import math
 import os
 import warnings
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,6 +60,7 @@ __all__ = [
     "eop_table_info",
     "set_eop_file",
     "eop_source",
+    "eop_identity",
     "EOP_FILE_ENV",
     "QUALITIES",
     "MAX_DUT1_ERROR_S",
@@ -219,6 +221,10 @@ def _parse_finals(path: str) -> _Table:
     )
 
 
+#: :func:`eop_identity`'s digest of each parsed table (computed once).
+_DIGESTS: "weakref.WeakKeyDictionary[_Table, str]" = weakref.WeakKeyDictionary()
+
+
 @functools.lru_cache(maxsize=4)
 def _table(path: str | None = None) -> _Table:
     if path is None:
@@ -252,6 +258,24 @@ def set_eop_file(path) -> str:
     _table(full)                                   # parse now: a bad file is refused before any work
     os.environ[EOP_FILE_ENV] = full
     return full
+
+
+def eop_identity() -> tuple[str, str]:
+    """``(source, digest)`` of the Earth orientation table in use: where it comes from
+    (:func:`eop_source`) and a SHA-256 of its parsed columns, the same for the same table
+    wherever it is installed.  A process that computes apparent places for another (a Dask
+    worker of ``measure-archive``) checks with it that its table is the caller's."""
+    table = _active_table()
+    digest = _DIGESTS.get(table)
+    if digest is None:
+        import hashlib
+
+        h = hashlib.sha256()
+        for a in (table.mjd, table.ut1_tai_s, table.xp_arcsec, table.yp_arcsec, table.ut1_error_s,
+                  table.pm_error_arcsec, table.measured):
+            h.update(np.ascontiguousarray(a).tobytes())
+        digest = _DIGESTS[table] = h.hexdigest()
+    return table.source, digest
 
 
 def eop_source() -> str:
