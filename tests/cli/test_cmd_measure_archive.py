@@ -582,3 +582,46 @@ def test_dask_is_not_imported_with_shipstar():
             "print('dask' in sys.modules or 'distributed' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def _table_with_ut1_moved(path, around_mjd: float, by_s: float):
+    """The packaged IERS-A table with UT1 - UTC moved by ``by_s`` on the rows within 3 days
+    of ``around_mjd`` (both the Bulletin A column and, where given, B's), written to ``path``."""
+    from pathlib import Path
+
+    from astropy_iers_data import IERS_A_FILE
+
+    lines = Path(IERS_A_FILE).read_bytes().split(b"\n")
+    moved = 0
+    for k, line in enumerate(lines):
+        if len(line) < 68 or not line[7:15].strip() or abs(float(line[7:15]) - around_mjd) > 3.0:
+            continue
+        line = line[:58] + b"%10.7f" % (float(line[58:68]) + by_s) + line[68:]
+        if len(line) >= 165 and line[154:165].strip():
+            line = line[:154] + b"%11.7f" % (float(line[154:165]) + by_s) + line[165:]
+        lines[k] = line
+        moved += 1
+    assert moved >= 6
+    path.write_bytes(b"\n".join(lines))
+    return path
+
+
+def test_workers_of_another_process_use_the_commands_earth_orientation_table(root, cluster):
+    """--eop FILE reaches workers that were not started by the command (their environment
+    is not its): with UT1 moved 0.1 s (~1.5'' of heading) around the session, the archive
+    on the external cluster gives serial measure's rows with that table, which differ from
+    the rows without it."""
+    from shipstar.pipeline._sources import FitsDirectorySource
+
+    lc, client = cluster
+    jd1, jd2 = FitsDirectorySource("A1", root / "sea" / "A1").times_utc_jd()
+    table = _table_with_ut1_moved(root / "moved_ut1.all", float(jd1[0] - 2400000.5 + jd2[0]), 0.1)
+    serial = _run(root, "measure", *SEA, *CHUNK, "--workers", "1", "--eop", str(table), "--out", "out/eop_serial.csv")
+    assert serial.returncode == 0, serial.stderr
+    archive = _run(root, "measure-archive", *SEA, *CHUNK, "--scheduler", lc.scheduler_address, "--eop", str(table),
+                   "--out", "out/eop_archive.csv")
+    assert archive.returncode == 0, archive.stderr
+    with_table = (root / "out" / "eop_archive.csv").read_text()
+    assert _rows(with_table) == _rows((root / "out" / "eop_serial.csv").read_text())
+    assert _rows(with_table) != _rows(_reference(root))
+    assert client.run(lambda: os.environ.get("SHIPSTAR_EOP_FILE")) == {a: str(table) for a in client.nthreads()}
