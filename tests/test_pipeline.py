@@ -818,15 +818,15 @@ def test_motion_fit_counts_distinct_times_as_numpy_unique():
 
 
 def test_a_task_uses_the_runs_earth_orientation_table_or_refuses(tmp_path, monkeypatch):
-    """use_job_eop (every task's start): a process started without --eop (a Dask worker of
+    """use_job_tables (every task's start): a process started without --eop (a Dask worker of
     another machine) takes the job's table; a table that is not the job's (another
-    astropy-iers-data, another file at that path) or a file it cannot read is a one-line
-    error, never other rows."""
+    astropy-iers-data, another file at that path), a file it cannot read or another
+    Hipparcos catalog is a one-line error, never other rows."""
     from pathlib import Path
 
     from astropy_iers_data import IERS_A_FILE
 
-    from shipstar.pipeline._measure import MeasureJob, job_eop, process_chunk, use_job_eop
+    from shipstar.pipeline._measure import MeasureJob, job_tables, process_chunk, use_job_tables
     from shipstar.sky import eop
 
     packaged = Path(IERS_A_FILE).read_bytes()
@@ -838,22 +838,26 @@ def test_a_task_uses_the_runs_earth_orientation_table_or_refuses(tmp_path, monke
         table = tmp_path / "finals.all"
         table.write_bytes(altered)
         eop.set_eop_file(table)
-        job = MeasureJob((), None, None, None, (0.0, 0.0), **job_eop())
+        job = MeasureJob((), None, None, None, (0.0, 0.0), **job_tables())
         assert job.eop_file == str(table) and len(job.eop_digest) == 64
         eop.set_eop_file(None)                          # a worker started without --eop
-        use_job_eop(job)
+        use_job_tables(job)
         assert eop.eop_source() == str(table)
         eop.set_eop_file(None)
         table.write_bytes(packaged)                     # another file at that path
         eop._table.cache_clear()
         with pytest.raises(ShipstarError, match="not the one the run was started with") as err:
-            use_job_eop(job)
+            use_job_tables(job)
         assert "\n" not in str(err.value)
         with pytest.raises(ShipstarError, match="no such file"):
-            use_job_eop(replace(job, eop_file=str(tmp_path / "missing.all")))
+            use_job_tables(replace(job, eop_file=str(tmp_path / "missing.all")))
         with pytest.raises(ShipstarError, match="astropy-iers-data"):      # another packaged table
-            use_job_eop(replace(job, eop_file=None, eop_digest="0" * 64))
-        use_job_eop(replace(job, eop_digest=""))     # not checked (a job made by hand)
+            use_job_tables(replace(job, eop_file=None, eop_digest="0" * 64))
+        use_job_tables(replace(job, eop_digest=""))     # not checked (a job made by hand)
+        assert job.catalog_identity.startswith("hip") or "|" in job.catalog_identity
+        with pytest.raises(ShipstarError, match="Hipparcos catalog .* is not the one the run was started with"):
+            use_job_tables(replace(job, eop_digest="", catalog_identity="hip2.dat|1|0"))   # another catalog
+        use_job_tables(replace(job, eop_digest="", catalog_identity=""))
         with pytest.raises(ShipstarError, match="not the one the run was started with"):   # every task checks
             next(process_chunk(replace(job, eop_file=None, eop_digest="0" * 64), 0, None, 0, 0, 10))
     finally:

