@@ -197,6 +197,19 @@ static int reject_loop(const double *w, const double *v, const double *a, const 
 }
 
 /* The anisotropic step of _solution_anisotropic; FALLBACK when F is singular. */
+/* F += [x]x^T W [x]x: the attitude information about the body axes of a direction x (3,)
+ * with information matrix W (3, 3) (_solve.py's _fisher_body, one term) */
+static void add_fisher(const double *x, const double *W, double *F)
+{
+    double A[9] = {0, -x[2], x[1], x[2], 0, -x[0], -x[1], x[0], 0}, WA[9];
+    for (int rr = 0; rr < 3; rr++)
+        for (int cc = 0; cc < 3; cc++)
+            WA[3 * rr + cc] = W[3 * rr] * A[cc] + W[3 * rr + 1] * A[3 + cc] + W[3 * rr + 2] * A[6 + cc];
+    for (int rr = 0; rr < 3; rr++)
+        for (int cc = 0; cc < 3; cc++)
+            F[3 * rr + cc] += A[rr] * WA[cc] + A[3 + rr] * WA[3 + cc] + A[6 + rr] * WA[6 + cc];
+}
+
 static int anisotropic(double *C, const double *w, const double *v, long n, const uint8_t *active,
                        const double *Ws, int sigma_given, double *P, double *r, double *scale_out)
 {
@@ -206,14 +219,7 @@ static int anisotropic(double *C, const double *w, const double *v, long n, cons
         if (!active[i]) continue;
         m++;
         const double *x = w + 3 * i, *W = Ws + 9 * i;
-        /* A = [x]x; A^T W A */
-        double A[9] = {0, -x[2], x[1], x[2], 0, -x[0], -x[1], x[0], 0}, WA[9];
-        for (int rr = 0; rr < 3; rr++)
-            for (int cc = 0; cc < 3; cc++)
-                WA[3 * rr + cc] = W[3 * rr] * A[cc] + W[3 * rr + 1] * A[3 + cc] + W[3 * rr + 2] * A[6 + cc];
-        for (int rr = 0; rr < 3; rr++)
-            for (int cc = 0; cc < 3; cc++)
-                F[3 * rr + cc] += A[rr] * WA[cc] + A[3 + rr] * WA[3 + cc] + A[6 + rr] * WA[6 + cc];
+        add_fisher(x, W, F);
         /* u = C^T v_i, e = u - w_i, g -= u x (W e) */
         const double *y = v + 3 * i;
         double u[3], e[3], We[3];
@@ -1271,15 +1277,7 @@ static PyObject *py_common_mode(PyObject *self, PyObject *args)
         double n = sqrt(wi[0] * wi[0] + wi[1] * wi[1] + wi[2] * wi[2]);
         double u[3] = {wi[0] / n, wi[1] / n, wi[2] / n};
         if (aniso) {
-            /* [u]x^T W [u]x = -[u]x W [u]x */
-            const double *Wi = Wa + 9 * rows[k];
-            double S[9] = {0.0, -u[2], u[1], u[2], 0.0, -u[0], -u[1], u[0], 0.0}, WS[9];
-            for (int i = 0; i < 3; i++)
-                for (int j = 0; j < 3; j++)
-                    WS[3 * i + j] = Wi[3 * i] * S[j] + Wi[3 * i + 1] * S[3 + j] + Wi[3 * i + 2] * S[6 + j];
-            for (int i = 0; i < 3; i++)
-                for (int j = 0; j < 3; j++)
-                    F[3 * i + j] += S[i] * WS[j] + S[3 + i] * WS[3 + j] + S[6 + i] * WS[6 + j];
+            add_fisher(u, Wa + 9 * rows[k], F);
         } else {
             double s2 = 1.0 / (sg[rows[k]] * sg[rows[k]]);
             for (int i = 0; i < 3; i++)
