@@ -450,7 +450,7 @@ class SessionEngine:
             shifts = [0.0 if p is None else t_k + o - self.t_s(p) for p, o in zip(paired, offsets)]
             # a held epoch's monitor is that of its release (_smoothed)
             epoch = _replaced(epoch, mounts=self._mounts.update(t_k, epoch, paired, shifts, configs, fit,
-                                                              with_monitor=self.smooth_lag_s <= 0.0))
+                                                                with_monitor=self.smooth_lag_s <= 0.0))
         self.n_epochs += 1
         self._motion.prune(t_k - self.smooth_lag_s)     # the held epochs' deck motion stays
         rows.sort(key=lambda r: (r[0], r[1]))

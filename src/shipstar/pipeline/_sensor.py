@@ -293,7 +293,8 @@ _EMPTY = np.empty(0)
 
 def _turned_rows(h, model, R):
     """:meth:`FrameResult.sensor_stars`'s inlier rows turned by ``R`` in one compiled call
-    (``attitude._ckernels.sensor_rows``, ~3 us against ~20 us of NumPy; equal to rounding):
+    (``attitude._ckernels.sensor_rows``: the whole method ~9 us against ~22 us with NumPy's
+    fancy indexing and stacked products; equal to rounding):
     ``(w, info or None, model or None, rows)``, or None where the NumPy path must run (an
     inlier mask or arrays not as the solver makes them)."""
     from shipstar.attitude import _ckernels
