@@ -306,11 +306,15 @@ def fuse_joint(sensors: Sequence[SensorStars], *, reject_outliers: bool = True) 
     return _from_C(sol.C_ref_from_body, cov, "joint", int(sol.n_used))
 
 
+#: An empty buffer: "not given" for the compiled kernels' optional arrays.
+_EMPTY = np.empty(0)
+
+
 def _turned_to_deck(w, info, C_ds):
     """``(w C_ds^T, C_ds info C_ds^T)`` of a sensor whose stars have information matrices
     (``info`` (N, 3, 3)), in one compiled call (``attitude._ckernels.sensor_rows``, equal
-    to NumPy's products to rounding); None without them (or not (N, 3, 3) finite arrays:
-    the NumPy path checks and words the error)."""
+    to NumPy's products to rounding); None without them, or when they are not (N, 3, 3)
+    (the NumPy path then words the error).  ``C_ds``: ``C_deck_from_sensor``."""
     from shipstar.attitude import _ckernels
 
     if info is None or C_ds.shape != (3, 3):
@@ -323,9 +327,6 @@ def _turned_to_deck(w, info, C_ds):
     _ckernels.sensor_rows(np.ascontiguousarray(w), W, _EMPTY, np.arange(n, dtype=np.int64),
                           np.ascontiguousarray(C_ds), wd, Wd, _EMPTY)
     return wd, Wd
-
-
-_EMPTY = np.empty(0)
 
 
 def _deck_information(sensors, w_deck, sigma, turned=None) -> np.ndarray:
@@ -411,9 +412,10 @@ def _common_mode_covariance(sensors, sol, info, sigma, w_deck) -> np.ndarray:
     attitude moves by ``P F_s d`` when that sensor's stars all turn by ``d`` (``P`` the
     joint covariance, ``F_s`` the information of the sensor's inlier stars).
 
-    Each sensor's term by the compiled kernel (``attitude._ckernels.common_mode``: ~6 us
-    a call against ~45 us for :func:`_common_mode_covariance_python`, the reference,
-    equal to rounding), the NumPy path where the kernel declines (a singular mount term).
+    Each sensor's term by the compiled kernel (``attitude._ckernels.common_mode``: the
+    whole function ~10 us an epoch against ~35-65 us for
+    :func:`_common_mode_covariance_python`, the reference, equal to rounding), the NumPy
+    path where the kernel declines (a singular mount term).
     """
     from shipstar.attitude import _ckernels
 

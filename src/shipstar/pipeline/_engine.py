@@ -55,6 +55,12 @@ from dataclasses import dataclass, replace
 
 from shipstar.errors import ShipstarError
 
+__all__ = ["Emission", "SessionEngine", "GAP_WARNING_S"]
+
+#: A sensor's frames further apart than this (s) are reported as a gap.
+GAP_WARNING_S = 2.0
+_EPS_S = 1e-9
+
 
 def _replaced(obj, **changes):
     """``dataclasses.replace`` of one of the engine's frozen records (``Emission``,
@@ -68,12 +74,6 @@ def _replaced(obj, **changes):
             raise TypeError(f"{type(obj).__name__} has no field {k!r}")
         d[k] = v
     return new
-
-__all__ = ["Emission", "SessionEngine", "GAP_WARNING_S"]
-
-#: A sensor's frames further apart than this (s) are reported as a gap.
-GAP_WARNING_S = 2.0
-_EPS_S = 1e-9
 
 
 @dataclass(frozen=True, eq=False)

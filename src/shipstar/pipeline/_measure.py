@@ -116,7 +116,7 @@ def use_job_tables(job: MeasureJob) -> None:
     machine, started without ``--eop``), and check that it and the Hipparcos catalog are
     the run's (raises ShipstarError, one line: that file missing here, or another table
     or catalog)."""
-    digest = getattr(job, "eop_digest", "")
+    digest = job.eop_digest
     if digest:
         from shipstar.sky.eop import EOP_FILE_ENV, eop_identity, set_eop_file
 
@@ -128,7 +128,7 @@ def use_job_tables(job: MeasureJob) -> None:
             raise ShipstarError(f"this process's Earth orientation table ({source}) is not the one the run was "
                                 f"started with ({wanted}): give --eop FILE on a file system every worker reads, or "
                                 f"install the same astropy-iers-data everywhere")
-    catalog = getattr(job, "catalog_identity", "")
+    catalog = job.catalog_identity
     if catalog:
         from shipstar.sky.catalog import hipparcos_identity
 
