@@ -5,6 +5,9 @@ by the C compiler that builds Python's own extensions (gcc here), at install tim
 sources in the package: nothing is downloaded and nothing is compiled at run time.
 """
 
+import hashlib
+from pathlib import Path
+
 from setuptools import Extension, setup
 
 _CFLAGS = ["-O3", "-std=c99", "-fno-math-errno", "-Wall"]
@@ -12,13 +15,25 @@ _CFLAGS = ["-O3", "-std=c99", "-fno-math-errno", "-Wall"]
 #: QUEST in C, included by the identification and attitude kernels
 _QUEST_H = ["src/shipstar/_cquest.h"]
 
+
+
+def _kernel(name: str, source: str, depends=()) -> Extension:
+    """One compiled module, which carries the SHA-256 of its C sources (``SOURCE_SHA256``:
+    each file's path and bytes) for ``shipstar._codeid.code_identity``: a Dask worker whose
+    kernels were built from other sources is refused by the archive's tasks."""
+    digest = hashlib.sha256()
+    for path in (source, *depends):
+        data = Path(path).read_bytes()
+        digest.update(f"{path}\0{len(data)}\0".encode() + data)
+    return Extension(name, [source], extra_compile_args=_CFLAGS, depends=list(depends),
+                     define_macros=[("SHIPSTAR_SOURCE_SHA256", f'"{digest.hexdigest()}"')])
+
+
 EXTENSIONS = [
-    Extension("shipstar._cfits", ["src/shipstar/_cfits.c"], extra_compile_args=_CFLAGS),
-    Extension("shipstar.extract._ckernels", ["src/shipstar/extract/_ckernels.c"], extra_compile_args=_CFLAGS),
-    Extension("shipstar.identify._ckernels", ["src/shipstar/identify/_ckernels.c"], extra_compile_args=_CFLAGS,
-              depends=_QUEST_H),
-    Extension("shipstar.attitude._ckernels", ["src/shipstar/attitude/_ckernels.c"], extra_compile_args=_CFLAGS,
-              depends=_QUEST_H),
+    _kernel("shipstar._cfits", "src/shipstar/_cfits.c"),
+    _kernel("shipstar.extract._ckernels", "src/shipstar/extract/_ckernels.c"),
+    _kernel("shipstar.identify._ckernels", "src/shipstar/identify/_ckernels.c", _QUEST_H),
+    _kernel("shipstar.attitude._ckernels", "src/shipstar/attitude/_ckernels.c", _QUEST_H),
 ]
 
 setup(ext_modules=EXTENSIONS)

@@ -11,7 +11,7 @@ import shipstar
 ORDER = [
     "units", "errors", "limits", "_atomic", "_digest", "_signals", "frames",
     "sky", "_cfits", "_fitsio", "camera", "simulate", "extract",
-    "attitude", "identify",
+    "attitude", "identify", "_codeid",
     "calibrate", "ship", "errormodel", "pipeline", "live",
     "report", "config", "_demo",
     "cli", "__main__",

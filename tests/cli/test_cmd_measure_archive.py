@@ -625,3 +625,45 @@ def test_workers_of_another_process_use_the_commands_earth_orientation_table(roo
     assert _rows(with_table) == _rows((root / "out" / "eop_serial.csv").read_text())
     assert _rows(with_table) != _rows(_reference(root))
     assert client.run(lambda: os.environ.get("SHIPSTAR_EOP_FILE")) == {a: str(table) for a in client.nthreads()}
+
+
+def _set_code_identity(value):
+    """On a worker: make its shipstar report another code identity (another checkout),
+    or its own again (None)."""
+    import shipstar._codeid as codeid
+
+    if value is None:
+        codeid.__dict__.pop("code_identity", None)
+        import importlib
+
+        importlib.reload(codeid)
+    else:
+        codeid.code_identity = lambda: value
+
+
+def _code_identity():
+    import shipstar._codeid
+
+    return shipstar._codeid.code_identity()
+
+
+def test_workers_running_other_code_fail_their_chunks_not_silently(root, cluster):
+    """Workers of the external cluster that run another shipstar (their code identity not the
+    command's) fail every task with a one-line reason; no output that looks complete (the
+    rows would have been the other code's)."""
+    lc, client = cluster
+    other = "0.1.0:" + "0" * 64
+    out = root / "out" / "other_code.csv"
+    client.run(_set_code_identity, other)
+    try:
+        assert set(client.run(_code_identity).values()) == {other}
+        proc = _run(root, "measure-archive", *SEA, *CHUNK, "--scheduler", lc.scheduler_address,
+                    "--retries", "0", "--retry-delay-s", "0", "--out", str(out))
+    finally:
+        client.run(_set_code_identity, None)
+    assert proc.returncode == 1, proc.stderr
+    assert "Traceback" not in proc.stderr and not out.exists()
+    failed = [ln for ln in proc.stderr.splitlines() if "failed:" in ln]
+    assert len(failed) == 1, proc.stderr
+    assert "this worker runs other shipstar code (0.1.0:0000000000000000) than the command" in failed[0]
+    assert other not in set(client.run(_code_identity).values())

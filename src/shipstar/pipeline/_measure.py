@@ -87,6 +87,11 @@ class MeasureJob:
         The Hipparcos catalog's :func:`~shipstar.sky.catalog.hipparcos_identity` where the run
         was started: a task on a process with another catalog fails likewise.  Empty: not
         checked.
+    code_identity : str
+        The shipstar code of the process that made the job (:func:`shipstar._codeid.code_identity`:
+        its Python sources, data files and the C sources of its compiled modules): a task on
+        a process that runs other code (a remote worker with another checkout or wheel)
+        fails likewise.  Empty: not checked (``measure``'s own pool of forked processes).
     """
 
     configs: tuple
@@ -99,6 +104,7 @@ class MeasureJob:
     eop_file: str | None = None
     eop_digest: str = ""
     catalog_identity: str = ""
+    code_identity: str = ""
 
 
 def job_tables() -> dict:
@@ -113,9 +119,17 @@ def job_tables() -> dict:
 
 def use_job_tables(job: MeasureJob) -> None:
     """Make ``job``'s Earth orientation table the one in use here (a worker of another
-    machine, started without ``--eop``), and check that it and the Hipparcos catalog are
-    the run's (raises ShipstarError, one line: that file missing here, or another table
-    or catalog)."""
+    machine, started without ``--eop``), and check that it, the Hipparcos catalog and the
+    shipstar code are the run's (raises ShipstarError, one line: that file missing here,
+    or another table, catalog or code)."""
+    if job.code_identity:
+        from shipstar._codeid import code_identity
+
+        here = code_identity()
+        if here != job.code_identity:
+            raise ShipstarError(f"this worker runs other shipstar code ({here[:22]}) than the command "
+                                f"({job.code_identity[:22]}): install the same shipstar (the same sources, "
+                                f"kernels built from them) on every worker")
     digest = job.eop_digest
     if digest:
         from shipstar.sky.eop import EOP_FILE_ENV, eop_identity, set_eop_file
@@ -334,13 +348,16 @@ def task_order(plan: list, first_chunk: int = 0) -> list:
 
 
 def _fingerprint(job: MeasureJob, sources, chunk_s: float) -> dict:
-    """What must not change between a stopped run and its ``--resume``."""
+    """What must not change between a stopped run and its ``--resume`` (the code too: the
+    rows of two versions are not mixed in one file)."""
+    from shipstar._codeid import code_identity
+
     times = [s.times_utc_jd() for s in sources]
     return {"sensors": [c.name for c in job.configs], "n_frames": [int(len(t[0])) for t in times],
             "first_last_utc_jd": [[float(t[0][0] + t[1][0]), float(t[0][-1] + t[1][-1])] for t in times],
             "start_utc_jd": list(job.start_utc_jd), "reference": job.reference, "chunk_s": chunk_s,
             "smooth_lag_s": job.smooth_lag_s, "eop_digest": job.eop_digest,
-            "catalog_identity": job.catalog_identity,
+            "catalog_identity": job.catalog_identity, "code_identity": code_identity(),
             "options": repr(job.options),
             "installations": [repr(c.installation) for c in job.configs],
             "cameras": [repr(c.camera) for c in job.configs]}
