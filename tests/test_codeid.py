@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 import shipstar
-from shipstar._codeid import COMPILED_MODULES, code_identity, tree_digest
+from shipstar._codeid import COMPILED_MODULES, code_identity, environment, tree_digest
 from shipstar.errors import ShipstarError
 
 CHECKOUT = Path(__file__).resolve().parents[1]
@@ -105,6 +105,33 @@ def test_a_task_on_other_code_refuses(monkeypatch):
         use_job_tables(job)
 
 
+def test_environment_names_the_versions_of_this_process():
+    """Against the modules' own version attributes, gathered independently."""
+    import platform
+    import sys
+
+    import erfa
+    import numpy
+
+    env = environment()
+    assert f"python {sys.version_info.major}.{sys.version_info.minor}.{sys.version_info.micro} " in env
+    assert f"numpy {numpy.__version__};" in env and f"pyerfa {erfa.__version__} " in env
+    assert erfa.version.erfa_version in env and env.endswith(platform.machine())
+
+
+def test_a_task_in_another_environment_refuses():
+    """A worker with other versions (another NumPy: other rounding in places) refuses with
+    both environments in one line."""
+    from shipstar.pipeline._measure import MeasureJob, use_job_tables
+
+    job = MeasureJob((), None, None, None, (0.0, 0.0), environment=environment())
+    use_job_tables(job)
+    other = environment().replace("numpy ", "numpy 0.")
+    with pytest.raises(ShipstarError, match="this worker's environment .* is not the command's") as err:
+        use_job_tables(replace(job, environment=other))
+    assert "\n" not in str(err.value) and other in str(err.value)
+
+
 def test_a_resume_after_the_code_changed_is_refused(monkeypatch):
     """The resume fingerprint holds this process's code identity (measure and the archive
     alike): a stopped run continued by other code would mix two versions' rows."""
@@ -113,5 +140,6 @@ def test_a_resume_after_the_code_changed_is_refused(monkeypatch):
 
     job = MeasureJob((), None, None, None, (0.0, 0.0))
     assert _fingerprint(job, [], 30.0)["code_identity"] == code_identity()
+    assert _fingerprint(job, [], 30.0)["environment"] == environment()
     monkeypatch.setattr(shipstar._codeid, "code_identity", lambda: "edited")
     assert _fingerprint(job, [], 30.0)["code_identity"] == "edited"

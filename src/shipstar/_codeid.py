@@ -10,7 +10,10 @@ path within the package and its bytes; ``__pycache__`` and the compiled modules 
 and of each compiled module's ``SOURCE_SHA256``, the digest of the C sources it was built
 from (set by ``setup.py``).  So an editable install and a wheel of the same sources have
 the same identity; a worker with one edited module, an older wheel, or kernels built from
-other C sources has another.  It does not cover the Python, NumPy or compiler versions.
+other C sources has another.  The job also carries :func:`environment`, the versions the
+numerics depend on besides (Python, NumPy, pyerfa and its ERFA library, the machine's
+architecture), checked likewise; neither covers the C library's ``libm`` or the compiler's
+version.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ from __future__ import annotations
 import functools
 from pathlib import Path
 
-__all__ = ["code_identity", "tree_digest"]
+__all__ = ["code_identity", "environment", "tree_digest"]
 
 #: The compiled modules whose C sources count (``SOURCE_SHA256``, from setup.py).
 COMPILED_MODULES = ("shipstar._cfits", "shipstar.extract._ckernels", "shipstar.identify._ckernels",
@@ -46,6 +49,19 @@ def tree_digest(root) -> str:
         data = path.read_bytes()
         digest.update(f"{rel}\0{len(data)}\0".encode() + data)
     return digest.hexdigest()
+
+
+def environment() -> str:
+    """The versions the rows' numerics depend on besides shipstar's own code: Python, NumPy,
+    pyerfa and its ERFA library, and the machine's architecture, as one line."""
+    import platform
+    import sys
+
+    import erfa
+    import numpy
+
+    return (f"python {'.'.join(map(str, sys.version_info[:3]))} {sys.implementation.name}; numpy {numpy.__version__}; "
+            f"pyerfa {erfa.__version__} (erfa {erfa.version.erfa_version}); {platform.machine()}")
 
 
 @functools.cache

@@ -227,7 +227,7 @@ def _prepare(session, header_reader=None) -> None:
 
     from dataclasses import replace
 
-    from shipstar._codeid import code_identity
+    from shipstar._codeid import code_identity, environment
     from shipstar.cli._header_checks import override_record
     from shipstar.pipeline import TruthTable
     from shipstar.pipeline._integrity import swap_check
@@ -236,8 +236,8 @@ def _prepare(session, header_reader=None) -> None:
     n_caught = len(getattr(a, "caught_warnings", None) or [])
     track, weather = _site_and_weather(a)
     session.truth = TruthTable.read_csv(a.truth) if a.truth else None
-    # the workers must run this code (another checkout on a remote worker: other rows)
-    session.job = replace(_job(a, track, weather), code_identity=code_identity())
+    # the workers must run this code in this environment (a remote worker's other checkout: other rows)
+    session.job = replace(_job(a, track, weather), code_identity=code_identity(), environment=environment())
     session.sources = _sources(a, session.job.configs, track, weather, header_reader=header_reader)
     for src in session.sources:                     # the workers may run in another directory
         src.directory = str(Path(src.directory).resolve())

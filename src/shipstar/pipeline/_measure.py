@@ -92,6 +92,10 @@ class MeasureJob:
         its Python sources, data files and the C sources of its compiled modules): a task on
         a process that runs other code (a remote worker with another checkout or wheel)
         fails likewise.  Empty: not checked (``measure``'s own pool of forked processes).
+    environment : str
+        The versions the numerics depend on besides (:func:`shipstar._codeid.environment`:
+        Python, NumPy, pyerfa and ERFA, the architecture), checked likewise.  Empty: not
+        checked.
     """
 
     configs: tuple
@@ -105,6 +109,7 @@ class MeasureJob:
     eop_digest: str = ""
     catalog_identity: str = ""
     code_identity: str = ""
+    environment: str = ""
 
 
 def job_tables() -> dict:
@@ -120,8 +125,8 @@ def job_tables() -> dict:
 def use_job_tables(job: MeasureJob) -> None:
     """Make ``job``'s Earth orientation table the one in use here (a worker of another
     machine, started without ``--eop``), and check that it, the Hipparcos catalog and the
-    shipstar code are the run's (raises ShipstarError, one line: that file missing here,
-    or another table, catalog or code)."""
+    shipstar code and environment are the run's (raises ShipstarError, one line: that
+    file missing here, or another table, catalog, code or environment)."""
     if job.code_identity:
         from shipstar._codeid import code_identity
 
@@ -130,6 +135,13 @@ def use_job_tables(job: MeasureJob) -> None:
             raise ShipstarError(f"this worker runs other shipstar code ({here[:22]}) than the command "
                                 f"({job.code_identity[:22]}): install the same shipstar (the same sources, "
                                 f"kernels built from them) on every worker")
+    if job.environment:
+        from shipstar._codeid import environment
+
+        here = environment()
+        if here != job.environment:
+            raise ShipstarError(f"this worker's environment ({here}) is not the command's ({job.environment}): "
+                                f"install the same versions on every worker (the rows would differ)")
     digest = job.eop_digest
     if digest:
         from shipstar.sky.eop import EOP_FILE_ENV, eop_identity, set_eop_file
@@ -234,10 +246,12 @@ def load_shared_data(cameras) -> None:
     for the next (76 ms of it the table, 25 ms the imports) on the development machine."""
     import importlib
 
+    from shipstar._codeid import code_identity
     from shipstar.pipeline._sensor import _database_for
     from shipstar.pipeline._stars import default_lookup
     from shipstar.sky.eop import _active_table
 
+    code_identity()                 # the archive's tasks check it (forked workers inherit it)
     default_lookup()
     for camera in cameras:
         _database_for(camera)
@@ -350,7 +364,7 @@ def task_order(plan: list, first_chunk: int = 0) -> list:
 def _fingerprint(job: MeasureJob, sources, chunk_s: float) -> dict:
     """What must not change between a stopped run and its ``--resume`` (the code too: the
     rows of two versions are not mixed in one file)."""
-    from shipstar._codeid import code_identity
+    from shipstar._codeid import code_identity, environment
 
     times = [s.times_utc_jd() for s in sources]
     return {"sensors": [c.name for c in job.configs], "n_frames": [int(len(t[0])) for t in times],
@@ -358,6 +372,7 @@ def _fingerprint(job: MeasureJob, sources, chunk_s: float) -> dict:
             "start_utc_jd": list(job.start_utc_jd), "reference": job.reference, "chunk_s": chunk_s,
             "smooth_lag_s": job.smooth_lag_s, "eop_digest": job.eop_digest,
             "catalog_identity": job.catalog_identity, "code_identity": code_identity(),
+            "environment": environment(),
             "options": repr(job.options),
             "installations": [repr(c.installation) for c in job.configs],
             "cameras": [repr(c.camera) for c in job.configs]}
