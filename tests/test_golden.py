@@ -28,9 +28,11 @@ TOLERANCE = {"t_s": 1e-6, "heading_deg": 1e-6, "pitch_deg": 1e-6, "roll_deg": 1e
 
 def _split(text: str):
     lines = text.splitlines()
-    # the packaged IERS table's path depends on where the environment is installed: its name counts
+    # the packaged IERS table's path depends on where the environment is installed: its name counts;
+    # the software line names the code's digest and the environment's versions, which change with
+    # every commit and machine by design (tests/cli/test_cmd_measure.py checks it): not compared
     comments = [line if not line.startswith("# eop_source = ") else "# eop_source = " + line.rsplit("/", 1)[-1]
-                for line in lines if line.startswith("#")]
+                for line in lines if line.startswith("#") and not line.startswith("# software = ")]
     rows = list(csv.DictReader(io.StringIO("\n".join(line for line in lines if not line.startswith("#")))))
     return comments, rows
 

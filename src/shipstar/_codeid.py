@@ -21,7 +21,7 @@ from __future__ import annotations
 import functools
 from pathlib import Path
 
-__all__ = ["code_identity", "environment", "tree_digest"]
+__all__ = ["code_identity", "environment", "software", "software_line", "tree_digest"]
 
 #: The compiled modules whose C sources count (``SOURCE_SHA256``, from setup.py).
 COMPILED_MODULES = ("shipstar._cfits", "shipstar.extract._ckernels", "shipstar.identify._ckernels",
@@ -78,3 +78,17 @@ def code_identity() -> str:
         source = getattr(importlib.import_module(name), "SOURCE_SHA256", "")
         digest.update(f"\0{name}\0{source}".encode())
     return f"{shipstar.__version__}:{digest.hexdigest()}"
+
+
+def software_line() -> str:
+    """What made an output file, for its comment header: ``software = shipstar <version>,
+    code <first 16 hex digits of the code identity>; <environment>``."""
+    version, digest = code_identity().split(":")
+    return f"software = shipstar {version}, code {digest[:16]}; {environment()}"
+
+
+def software() -> dict:
+    """The JSON summaries' ``software``: ``{"shipstar_version", "code_identity", "environment"}``."""
+    import shipstar
+
+    return {"shipstar_version": shipstar.__version__, "code_identity": code_identity(), "environment": environment()}

@@ -104,13 +104,19 @@ def test_sea_session_two_sensors(session):
     assert all(r["time_source"] == "DATE-AVG" for r in rows)
     # the CSV's comment header: Earth orientation and warnings, as in the summary
     e = summary["eop"]
+    from shipstar._codeid import code_identity, environment
+
+    version, digest = code_identity().split(":")
     assert _comments(session / "out" / "att.csv") == [
         "# shipstar measure: ship attitude (docs/file-formats.md)",
+        f"# software = shipstar {version}, code {digest[:16]}; {environment()}",
         f"# eop_quality = {e['quality']}, dut1_error_s = {e['dut1_error_s']:.3g}, "
         f"polar_motion_error_arcsec = {e['polar_motion_error_arcsec']:.3g}",
         f"# eop_source = {e['source']}",
         "# warnings at the start: none (a warning that arises later is written where it arises)"]
     assert summary["warnings"] == []
+    assert summary["software"] == {"shipstar_version": version, "code_identity": code_identity(),
+                                   "environment": environment()}
     # 10 ms exposures at sea: the streak correction is a few hundredths of an arcsecond;
     # each sensor's first 4 frames come before its motion is known
     assert summary["streak_correction"] is True
@@ -273,7 +279,7 @@ def test_refraction_model_other_than_the_dock_calibration_is_warned(session, tmp
                                "'almanac' but this run uses 'erfa': they differ by 0.4")
     assert summary["warnings"] == [lines[0].split("warning: ", 1)[1]]
     assert summary["eop"]["quality"] == "measured" and summary["eop"]["dut1_error_s"] < 1e-3
-    assert _comments(tmp_path / "x.csv")[2:] == [f"# eop_source = {summary['eop']['source']}",
+    assert _comments(tmp_path / "x.csv")[3:] == [f"# eop_source = {summary['eop']['source']}",
                                                   f"# warning: {summary['warnings'][0]}"]
     proc = _run(["--sensor", "A1=dock/A1", "--install", str(tmp_path / "A1.toml"), *DOCK_SITE,
                  "--refraction", "almanac", "--out", str(tmp_path / "y.csv"), "--json"], session)

@@ -123,6 +123,12 @@ def test_live_sends_the_rows_measure_writes(session, tmp_path):
     assert not (tmp_path / "live.csv.partial").exists()
     rows = _csv_rows(tmp_path / "live.csv")
     assert rows == _csv_rows(session / "measure.csv")                      # the same engine, the same numbers
+    # what made each file, in both: the same software line
+    from shipstar._codeid import software_line
+
+    software = [[ln for ln in p.read_text().splitlines() if ln.startswith("# software = ")]
+                for p in (tmp_path / "live.csv", session / "measure.csv")]
+    assert software == [[f"# {software_line()}"]] * 2
     objects = _attitude_rows([d for _, d in rx.datagrams])
     assert len(objects) == n_rows
     for obj, row in zip(objects, rows[1:]):

@@ -382,11 +382,13 @@ def _eop(sources) -> dict:
 
 
 def _csv_comments(eop: dict, warnings: list) -> list:
-    """The attitude CSV's comment lines known at the start: Earth orientation quality and
-    the warnings so far (later ones are written where they arise)."""
+    """The attitude CSV's comment lines known at the start: the software that writes it,
+    Earth orientation quality and the warnings so far (later ones are written where they
+    arise)."""
+    from shipstar._codeid import software_line
     from shipstar.sky.eop import eop_source
 
-    lines = ["shipstar measure: ship attitude (docs/file-formats.md)",
+    lines = ["shipstar measure: ship attitude (docs/file-formats.md)", software_line(),
              f"eop_quality = {eop['quality']}, dut1_error_s = {eop['dut1_error_s']:.3g}, "
              f"polar_motion_error_arcsec = {eop['polar_motion_error_arcsec']:.3g}",
              f"eop_source = {eop_source()}"]
@@ -461,6 +463,7 @@ def _check_covered(sources, track, weather) -> None:
 
 
 def run(args) -> int:
+    from shipstar._codeid import software
     from shipstar._signals import EXIT_CODES, StopOnSignals
     from shipstar.pipeline import TruthTable
     from shipstar.pipeline._integrity import swap_check
@@ -507,6 +510,7 @@ def run(args) -> int:
                                     athwartship_sensor=athw, options=job.options)
     summary["out"] = str(outcome.path)
     summary["complete"] = outcome.complete
+    summary["software"] = software()
     summary["eop"] = eop
     add_measure_uncertainty(summary, args, job)
     summary["date_obs_is"] = args.date_obs_is

@@ -529,6 +529,7 @@ def _drive_in_processes(todo, address: str, args, stop, progress, prep) -> None:
 
 
 def _summary(session, args) -> dict:
+    from shipstar._codeid import software
     from shipstar.cli._cmd_measure import _roles
     from shipstar.cli._model_inputs import add_measure_uncertainty
 
@@ -553,6 +554,7 @@ def _summary(session, args) -> dict:
                               options=job.options)
     summary["out"] = str(m.path)
     summary["complete"] = m.complete
+    summary["software"] = software()
     summary["eop"] = session.eop
     add_measure_uncertainty(summary, a, job)
     summary["date_obs_is"] = a.date_obs_is

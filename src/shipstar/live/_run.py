@@ -173,11 +173,13 @@ class _Latency:
 
 class _Live:
     def __init__(self, settings: LiveSettings, stop: threading.Event):
+        from shipstar._codeid import software_line
         from shipstar.live._outputs import UdpOutput
         from shipstar.live._watch import FrameWatcher
         from shipstar.live._workers import SensorWorkers
 
         self.s = settings
+        self.software = software_line()           # the CSV's provenance, made before any frame (~10 ms)
         self.stop = stop
         self.names = tuple(c.name for c in settings.configs)
         self.sensors = {n: _Sensor(n) for n in self.names}
@@ -335,7 +337,7 @@ class _Live:
         self._eop_checked = time.monotonic()
         if self.s.out_csv is not None:
             eop = self.eop
-            comments = ["shipstar live: ship attitude (docs/file-formats.md)",
+            comments = ["shipstar live: ship attitude (docs/file-formats.md)", self.software,
                         f"eop_quality = {eop['quality']}, dut1_error_s = {eop['dut1_error_s']:.3g}, "
                         f"polar_motion_error_arcsec = {eop['polar_motion_error_arcsec']:.3g}"]
             comments += [f"warning: {w}" for w in self.warnings] or [
