@@ -17,6 +17,7 @@
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include "_csource.h"
 #include <stdint.h>
 #include <errno.h>
 #if defined(__unix__) || defined(__APPLE__)
@@ -119,19 +120,5 @@ static PyMethodDef methods[] = {
 };
 
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_cfits", "shipstar's FITS reading helper", -1, methods};
-
-/* the SHA-256 of this module's C sources, set by setup.py (shipstar._codeid) */
-#ifndef SHIPSTAR_SOURCE_SHA256
-#define SHIPSTAR_SOURCE_SHA256 ""
-#endif
-
-static PyObject *module_with_source_digest(PyObject *m)
-{
-    if (m != NULL && PyModule_AddStringConstant(m, "SOURCE_SHA256", SHIPSTAR_SOURCE_SHA256) < 0) {
-        Py_DECREF(m);
-        return NULL;
-    }
-    return m;
-}
 
 PyMODINIT_FUNC PyInit__cfits(void) { return module_with_source_digest(PyModule_Create(&module)); }

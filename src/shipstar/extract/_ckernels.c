@@ -37,6 +37,7 @@
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include "../_csource.h"
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
@@ -2359,19 +2360,5 @@ static PyMethodDef methods[] = {
 };
 
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_ckernels", "shipstar's extraction kernels", -1, methods};
-
-/* the SHA-256 of this module's C sources, set by setup.py (shipstar._codeid) */
-#ifndef SHIPSTAR_SOURCE_SHA256
-#define SHIPSTAR_SOURCE_SHA256 ""
-#endif
-
-static PyObject *module_with_source_digest(PyObject *m)
-{
-    if (m != NULL && PyModule_AddStringConstant(m, "SOURCE_SHA256", SHIPSTAR_SOURCE_SHA256) < 0) {
-        Py_DECREF(m);
-        return NULL;
-    }
-    return m;
-}
 
 PyMODINIT_FUNC PyInit__ckernels(void) { return module_with_source_digest(PyModule_Create(&module)); }
