@@ -4,6 +4,7 @@ changed in one way each, and the compiled modules' source digests against the ch
 C sources (a kernel built from other sources fails here)."""
 
 import hashlib
+import re
 import shutil
 from dataclasses import replace
 from pathlib import Path
@@ -143,3 +144,25 @@ def test_a_resume_after_the_code_changed_is_refused(monkeypatch):
     assert _fingerprint(job, [], 30.0)["environment"] == environment()
     monkeypatch.setattr(shipstar._codeid, "code_identity", lambda: "edited")
     assert _fingerprint(job, [], 30.0)["code_identity"] == "edited"
+
+
+def test_a_resume_refusal_after_an_upgrade_says_so(tmp_path):
+    """The checkpoint of a run made by other code: the refusal names the code, not "other
+    input"; other data as well is still "other input"."""
+    import json
+
+    from shipstar.pipeline._measure import RESUME_VERSION, _read_checkpoint
+
+    partial = tmp_path / "att.csv.partial"
+    partial.write_text("# header\n")
+    now = {"n_frames": [10], "code_identity": code_identity(), "environment": environment()}
+    for then, message in (({**now, "code_identity": "0.0.9:" + "1" * 64}, "written by other shipstar code or another "
+                           "environment (code_identity differ): one file does not mix two versions' rows"),
+                          ({**now, "environment": "python 3.9"}, "(environment differ)"),
+                          ({**now, "n_frames": [9], "code_identity": "x"},
+                           "written by a run with other input (code_identity, n_frames differ)")):
+        checkpoint = tmp_path / "att.csv.resume"
+        checkpoint.write_text(json.dumps({"version": RESUME_VERSION, "fingerprint": then, "bytes": 9}))
+        with pytest.raises(ShipstarError, match=re.escape(message)) as err:
+            _read_checkpoint(checkpoint, now, partial)
+        assert "\n" not in str(err.value)

@@ -399,6 +399,10 @@ def _read_checkpoint(path: Path, fingerprint: dict, partial: Path) -> dict:
     if state.get("fingerprint") != json.loads(json.dumps(fingerprint)):
         changed = sorted(k for k, v in json.loads(json.dumps(fingerprint)).items()
                          if state.get("fingerprint", {}).get(k) != v)
+        if changed and set(changed) <= {"code_identity", "environment"}:     # an upgrade, not other data
+            raise ShipstarError(f"--resume: {partial.name} was written by other shipstar code or another environment "
+                                f"({', '.join(changed)} differ): one file does not mix two versions' rows; run again "
+                                f"without --resume")
         raise ShipstarError(f"--resume: {partial.name} was written by a run with other input ({', '.join(changed)} "
                             f"differ); run again without --resume")
     if partial.stat().st_size < state["bytes"]:
