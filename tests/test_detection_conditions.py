@@ -301,6 +301,62 @@ def test_persistent_pixels_are_found_while_the_stars_move():
     assert not np.any(f)
 
 
+def _persistent_brute_force(history, xy, token, displacement_px, n_frames, min_count, min_motion_px):
+    """The persistent-pixel rule written out directly: a detection is persistent when, in at
+    least ``min_count`` of the earlier remembered frames of the last ``n_frames`` (this one
+    counted: ``n_frames - 1`` earlier ones), a detection lay in the 3 x 3 pixels around its
+    rounded pixel and a star at its place would have moved by ``min_motion_px`` or more
+    since that frame.  ``history``: [(token, pixels)] of the remembered frames, oldest first."""
+    out = np.zeros(len(xy), dtype=bool)
+    if token is None or displacement_px is None:
+        return out
+    frames = history[max(0, len(history) - (n_frames - 1)):]
+    for m, (x, y) in enumerate(np.rint(xy).astype(int)):
+        count = 0
+        for tok, pixels in frames:
+            if any(abs(x - i) <= 1 and abs(y - j) <= 1 for i, j in pixels):
+                moved = displacement_px([tok], np.array([0]), token, xy[m:m + 1])[0]
+                count += moved >= min_motion_px
+        out[m] = count >= min_count
+    return out
+
+
+def test_persistent_pixels_follow_the_rule_and_stay_bounded_at_rest():
+    """Random nights (a field at rest, hot pixels, moving stars, frames without a pointing,
+    enough distinct pixels to make the class forget old ones) against the rule written out
+    directly; and a field at rest for many frames keeps at most n_frames entries a pixel
+    (it kept one per frame of the night: ~14 ms an update after 30 000 frames, against
+    0.33 ms flat now)."""
+    from shipstar.extract._artifacts import PersistentPixels
+
+    def shift(then, index, now, xy):
+        return np.abs(now - np.asarray(then, float)[index])
+
+    rng = np.random.default_rng(3)
+    n_flagged = 0
+    for trial in range(6):
+        n_frames, min_count = int(rng.integers(2, 6)), int(rng.integers(1, 4))
+        pp = PersistentPixels(n_frames=n_frames, min_count=min_count, min_motion_px=3.0)
+        history, still = [], rng.uniform(0, 60, (5, 2))
+        for k in range(160):
+            token = None if rng.random() < 0.1 else float(k % 17) * (2.0 if trial % 2 else 0.5)
+            moving = rng.uniform(0, 400 if trial < 3 else 40, (int(rng.integers(0, 30)), 2))
+            xy = np.vstack([still + rng.normal(0, 0.3, still.shape), moving])
+            want = _persistent_brute_force(history, xy, token, shift, n_frames, min_count, 3.0)
+            got = pp.update(xy, token, shift)
+            np.testing.assert_array_equal(got, want, err_msg=f"trial {trial} frame {k}")
+            n_flagged += int(want.sum())
+            if token is not None:
+                history.append((token, {tuple(p) for p in np.rint(xy).astype(int).tolist()}))
+        assert max(len(v) for v in pp._pixels.values()) <= n_frames
+    assert n_flagged > 100                          # the rule's positive cases were met
+    rest = PersistentPixels()
+    stars = rng.uniform(0, 1000, (40, 2))
+    for k in range(3000):
+        rest.update(stars + rng.normal(0, 0.05, stars.shape), 0.0, shift)
+    assert len(rest._pixels) < 200 and max(len(v) for v in rest._pixels.values()) <= rest.n_frames
+
+
 # --------------------------------------------------------------------------- seeing
 
 def test_the_noise_floor_follows_the_seeing(tmp_path):

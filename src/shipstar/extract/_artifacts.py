@@ -17,6 +17,7 @@ before identification:
 
 from __future__ import annotations
 
+import bisect
 import math
 
 import numpy as np
@@ -136,7 +137,10 @@ class PersistentPixels:
         self.min_motion_px = float(min_motion_px)
         self._frame = 0                 # frames remembered so far
         self._tokens: dict = {}         # frame number -> token
-        self._pixels: dict = {}         # (ix, iy) -> [frame numbers]
+        #: (ix, iy) -> the frame numbers (increasing) within the last ``n_frames`` when the
+        #: pixel was last detected: a pixel detected every frame (a field at rest, a hot pixel)
+        #: keeps n_frames + 1 of them, not one per frame of the night
+        self._pixels: dict = {}
 
     def update(self, xy_px, token=None, displacement_px=None) -> np.ndarray:
         """``(N,)`` bool for the frame's detections ``xy_px`` (N, 2).
@@ -177,7 +181,10 @@ class PersistentPixels:
         self._tokens[self._frame] = token
         self._tokens.pop(oldest, None)
         for key in {(i, j) for i, j in ij}:
-            self._pixels.setdefault(key, []).append(self._frame)
+            seen = self._pixels.setdefault(key, [])
+            seen.append(self._frame)
+            if seen[0] <= oldest:               # in frame order: only the last n_frames count
+                del seen[:bisect.bisect_right(seen, oldest)]
         self._frame += 1
         if len(self._pixels) > 200 * self.n_frames:          # forget pixels not seen lately
             self._pixels = {key: [f for f in v if f > oldest] for key, v in self._pixels.items()
