@@ -1,7 +1,7 @@
 """``shipstar measure`` on whole nights: time per frame and peak memory against session length.
 
-Three parts, each run in a child process whose whole process tree (the main process and
-its worker processes) is sampled every 50 ms for its resident memory (summed):
+Four parts; the first three each run in a child process whose whole process tree (the main
+process and its worker processes) is sampled every 50 ms for its resident memory (summed):
 
 1. image frames (``simulate-session --kind sea``: 1024 x 1024 FITS, 2.1 MB each, both
    sensors at 10 frames/s): 60 s and 6 min (14,400 frames, 15 GB: this disk holds
@@ -33,7 +33,14 @@ compile them again, a fixed cost of ~0.3 s that weighs on the 60 s runs' ratio.
 The image sessions are read once before their timed runs (the page cache warm for every
 run alike, :func:`read_once`).
 
-Run: ``python benchmarks/bench_measure_scale.py [--parts images,workers,starlists]
+4. a field at rest (dock): the image-level sensor chain on 20 minutes of night (12,000
+   frames) in this process, a 1 s dock session's frames fed again with advancing times:
+   ms per frame and traced memory per block of 2000 frames (targets: the last block within
+   10 % and 2 MB of the first).  A sea session's moving stars hid state that grew at rest:
+   the persistent-pixel map kept one entry per frame for a pixel seen in every frame
+   (+1.5 ms and +1 MB a frame every 1000 frames until 2026-12-07).
+
+Run: ``python benchmarks/bench_measure_scale.py [--parts images,workers,starlists,rest]
 [--hours 10] [--workdir DIR] [--no-bytecode-cache]`` (the image sessions are rendered once into the work
 directory and kept; 6 min takes ~4 min to render).  Needs ``psutil`` (``pip install
 '.[bench]'``).
@@ -245,6 +252,59 @@ def measure_images(d: Path, workers: int) -> dict:
             "cpu_s": LAST_CPU_S[0]}
 
 
+def rest_night(root: Path, minutes: float, block: int = 2000) -> list:
+    """A field at rest (dock) at image level for ``minutes`` of night, cheaply: a 1 s dock
+    session's 10 A1 frames given again and again to one sensor processor (the whole chain
+    per frame: extraction, the sky's tests, identification, attitude, the noise model) with
+    times advancing 0.1 s a frame, on a track and weather table covering the run.  Returns
+    ``[(frames, ms per frame, traced MB)]`` per block of ``block`` frames: state that grows
+    with the night (a frame's cost or memory rising from block to block) shows here, which
+    a sea session hides (its moving stars keep the per-pixel maps forgetting)."""
+    import tracemalloc
+
+    from shipstar._fitsio import read_fits_image
+    from shipstar.calibrate.installation import Installation
+    from shipstar.pipeline import Frame, PipelineOptions, SensorConfig, SensorProcessor, Track, WeatherTable, \
+        scan_frames
+    from shipstar.simulate._session import dock_session, write_session
+    from shipstar.sky.time import iso_from_utc_jd
+
+    d = root / "dock_1s"
+    spec = dock_session(duration_s=1.0)
+    spec = spec.replace(sensors=tuple(s for s in spec.sensors if s.name == "A1"))
+    if not (d / "session.toml").exists():
+        write_session(spec, d)
+    frames = scan_frames(d / "A1")
+    images = [read_fits_image(f.path) for f in frames]
+    f0 = frames[0]
+    n = int(minutes * 600)
+    site, weather = (d / "track.csv").read_text().splitlines(), (d / "weather.csv").read_text().splitlines()
+    for name, lines in (("track_rest.csv", site), ("weather_rest.csv", weather)):
+        values = lines[1].split(",", 1)[1]
+        rows = [lines[0]] + [f"{iso_from_utc_jd(f0.utc_jd1, f0.utc_jd2 + (k - 1.0) / 86400.0, 6)},{values}"
+                             for k in range(0, int(n * 0.1) + 20, 10)]
+        (d / name).write_text("\n".join(rows) + "\n")
+    s = spec.sensors[0]
+    proc = SensorProcessor(SensorConfig(s.name, s.camera, Installation.from_matrix(s.name, s.camera.name,
+                                                                                 s.C_deck_from_sensor)),
+                           Track.read_csv(d / "track_rest.csv"), WeatherTable.read_csv(d / "weather_rest.csv"),
+                           PipelineOptions())
+    out, t0 = [], time.perf_counter()
+    tracemalloc.start()
+    try:
+        for k in range(n):
+            t_s = 0.1 * k
+            j = k % len(images)
+            proc.process(Frame(f0.utc_jd1, f0.utc_jd2 + t_s / 86400.0, label=f"#{k}", image=images[j],
+                               exposure_s=frames[j].exposure_s), k, t_s)
+            if (k + 1) % block == 0:
+                out.append((k + 1, (time.perf_counter() - t0) / block * 1000, tracemalloc.get_traced_memory()[0] / 1e6))
+                t0 = time.perf_counter()
+    finally:
+        tracemalloc.stop()
+    return out
+
+
 def _row(label, r, start=None) -> str:
     steady = "" if start is None else f" {(r['wall_s'] - start['wall_s']) / (r['frames'] - start['frames']) * 1000:8.2f}"
     return f"{label:34s} {r['frames']:8d} {r['wall_s']:9.1f} {r['ms_per_frame']:8.2f}{steady} {r['peak_rss_mb']:11.0f}"
@@ -256,9 +316,11 @@ def _steady(r, start) -> float:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--parts", default="images,workers,starlists")
+    ap.add_argument("--parts", default="images,workers,starlists,rest")
     ap.add_argument("--hours", type=float, default=10.0, help="the long star-list run (default 10 h)")
     ap.add_argument("--image-minutes", type=float, default=6.0, help="the long image run (default 6 min)")
+    ap.add_argument("--rest-minutes", type=float, default=20.0,
+                    help="the field at rest, in this process (default 20 min of night: 12 000 frames, ~3 min)")
     ap.add_argument("--workdir", type=Path, help="where image sessions are rendered and kept")
     ap.add_argument("--repeat", type=int, default=3, help="--workers 1 / 2 pairs (default 3)")
     ap.add_argument("--no-bytecode-cache", action="store_true",
@@ -317,6 +379,16 @@ def main() -> int:
             print(_row(f"images {args.image_minutes:g} min, --workers 2", rl, t2))
             print(f"{args.image_minutes:g} min / 60 s: steady ms/frame {_steady(rl, t2) / _steady(r2, t2):.3f}, "
                   f"peak RSS {rl['peak_rss_mb'] / r2['peak_rss_mb']:.3f}")
+    if "rest" in parts:
+        print(f"\n-- 4. a field at rest (dock frames), the sensor chain in this process, {args.rest_minutes:g} min "
+              f"of night at 10 frames/s")
+        blocks = rest_night(root, args.rest_minutes)
+        for frames, ms, mb in blocks:
+            print(f"  frames {frames - 1999:6d}-{frames:6d}: {ms:6.2f} ms/frame, traced memory {mb:6.1f} MB")
+        (_, ms0, mb0), (_, ms1, mb1) = blocks[0], blocks[-1]
+        print(f"targets: the last block's ms/frame within 10 % of the first: {'PASS' if ms1 <= 1.10 * ms0 else 'FAIL'} "
+              f"({ms1 / ms0:.3f}); traced memory within 2 MB of the first block's: "
+              f"{'PASS' if mb1 - mb0 <= 2.0 else 'FAIL'} ({mb1 - mb0:+.1f} MB)")
     if "starlists" in parts:
         print("\n-- 3. star lists (the stages after extraction), --workers 2\n" + header + "   simulate ms/frame")
         results = {}
