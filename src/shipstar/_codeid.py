@@ -43,11 +43,11 @@ def tree_digest(root) -> str:
 
     root = Path(root)
     digest = hashlib.sha256()
-    files = sorted((p.relative_to(root).as_posix(), p) for p in root.rglob("*")
-                   if p.is_file() and _counted(p.relative_to(root)))
-    for rel, path in files:
+    files = sorted((rel.as_posix(), p) for p in root.rglob("*")
+                   if p.is_file() and _counted(rel := p.relative_to(root)))
+    for name, path in files:
         data = path.read_bytes()
-        digest.update(f"{rel}\0{len(data)}\0".encode() + data)
+        digest.update(f"{name}\0{len(data)}\0".encode() + data)
     return digest.hexdigest()
 
 

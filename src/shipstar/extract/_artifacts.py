@@ -139,7 +139,7 @@ class PersistentPixels:
         self._tokens: dict = {}         # frame number -> token
         #: (ix, iy) -> the frame numbers (increasing) within the last ``n_frames`` when the
         #: pixel was last detected: a pixel detected every frame (a field at rest, a hot pixel)
-        #: keeps n_frames + 1 of them, not one per frame of the night
+        #: keeps at most n_frames of them, not one per frame of the night
         self._pixels: dict = {}
 
     def update(self, xy_px, token=None, displacement_px=None) -> np.ndarray:
