@@ -348,13 +348,13 @@ def test_persistent_pixels_follow_the_rule_and_stay_bounded_at_rest():
             n_flagged += int(want.sum())
             if token is not None:
                 history.append((token, {tuple(p) for p in np.rint(xy).astype(int).tolist()}))
-        assert max(len(v) for v in pp._pixels.values()) <= n_frames
+        assert 0 < pp.entries_per_pixel_max() <= n_frames
     assert n_flagged > 100                          # the rule's positive cases were met
     rest = PersistentPixels()
     stars = rng.uniform(0, 1000, (40, 2))
     for k in range(3000):
         rest.update(stars + rng.normal(0, 0.05, stars.shape), 0.0, shift)
-    assert len(rest._pixels) < 200 and max(len(v) for v in rest._pixels.values()) <= rest.n_frames
+    assert rest.n_pixels() < 200 and rest.entries_per_pixel_max() == rest.n_frames
 
 
 # --------------------------------------------------------------------------- seeing
