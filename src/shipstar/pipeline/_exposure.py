@@ -36,7 +36,7 @@ from shipstar.units import RAD2ASEC
 
 __all__ = ["MIN_CORRECTION_ARCSEC", "STREAK_MODEL_FRACTION", "exposure_mean_offset", "mid_exposure_vectors",
            "rotation_vector_rad", "streak_corrected", "streak_along_factor", "streak_model_covariance",
-           "with_model_covariance", "StreakModel"]
+           "StreakModel"]
 
 #: A frame is solved again only when the correction turns a star by more than this.
 MIN_CORRECTION_ARCSEC = 0.01
@@ -259,22 +259,7 @@ def streak_corrected(fr, omega_sensor_rad_per_s, alpha_sensor_rad_per_s2, instal
     largest_arcsec = float(np.max(turn)) * RAD2ASEC if len(turn) else 0.0
     if largest_arcsec <= MIN_CORRECTION_ARCSEC:
         return fr
-    out = resolve_frame(fr, w_mid, installation, options, largest_arcsec)
-    if not out.solved or model is None or not model.fitted:       # given time averages: no streak model
-        return out
-    return with_model_covariance(out, streak_model_covariance(fr.horizontal.C_hor_from_sensor,
-                                                              out.horizontal.C_hor_from_sensor), installation)
-
-
-def with_model_covariance(fr, cov_rad2, installation):
-    """``fr`` (solved) whose attitude covariance gains the frame-level ``cov_rad2`` (3, 3,
-    sensor axes; :func:`streak_model_covariance`), recorded apart as
-    ``fr.model_covariance_rad2`` for the joint solution (its stars' weights cannot carry it)."""
-    from dataclasses import replace
-
-    from shipstar.pipeline._sensor import ship_from_horizontal
-
-    h = fr.horizontal
-    h = replace(h, covariance_rad2=h.covariance_rad2 + cov_rad2)
-    return replace(fr, horizontal=h, ship=ship_from_horizontal(h, installation),
-                   model_covariance_rad2=np.asarray(cov_rad2, float))
+    # the pipeline's own streak fits: their model's frame-level covariance joins the new solve's
+    fitted = model is not None and model.fitted
+    return resolve_frame(fr, w_mid, installation, options, largest_arcsec,
+                         streak_model_covariance if fitted else None)

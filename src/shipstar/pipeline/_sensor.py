@@ -420,7 +420,8 @@ def ship_from_horizontal(h, installation):
                                      n_stars=h.n_used)
 
 
-def resolve_frame(fr: FrameResult, w_sensor, installation, options, streak_correction_arcsec: float) -> FrameResult:
+def resolve_frame(fr: FrameResult, w_sensor, installation, options, streak_correction_arcsec: float,
+                  model_covariance=None) -> FrameResult:
     """``fr`` solved again from corrected measured vectors ``w_sensor`` (N, 3), one per row
     of ``fr.horizontal.w_sensor``, against the same reference stars, weights and weather.
 
@@ -433,14 +434,25 @@ def resolve_frame(fr: FrameResult, w_sensor, installation, options, streak_corre
     options : PipelineOptions
     streak_correction_arcsec : float
         Recorded in the result (:attr:`FrameResult.streak_correction_arcsec`).
+    model_covariance : callable, optional
+        ``model_covariance(C_hor_from_sensor_before, C_hor_from_sensor_after) -> (3, 3)``
+        (sensor axes, rad^2; :func:`~shipstar.pipeline._exposure.streak_model_covariance`):
+        when the new solve succeeds, a frame-level covariance added to its attitude's and
+        recorded apart as ``model_covariance_rad2`` for the joint solution (its stars'
+        weights cannot carry it); the ship attitude is computed once, from the sum.
     """
     t0 = time.perf_counter()
     # the same stars, weather and model: their refracted references are the first solve's
     h = _solve_hor(w_sensor, fr.solve_inputs, fr.weather, options, v_ref_hor=fr.horizontal.v_hor)
+    extra = {}
+    if model_covariance is not None and h.solved:
+        cov_rad2 = model_covariance(fr.horizontal.C_hor_from_sensor, h.C_hor_from_sensor)
+        h = replace(h, covariance_rad2=h.covariance_rad2 + cov_rad2)
+        extra["model_covariance_rad2"] = np.asarray(cov_rad2, float)
     ship = ship_from_horizontal(h, installation)
     return replace(fr, solved=bool(h.solved), reason=h.reason, horizontal=h, ship=ship,
                    elapsed_s=fr.elapsed_s + time.perf_counter() - t0,
-                   streak_correction_arcsec=float(streak_correction_arcsec))
+                   streak_correction_arcsec=float(streak_correction_arcsec), **extra)
 
 
 class _SmearPrediction(NamedTuple):
@@ -778,7 +790,9 @@ class SensorProcessor:
         """``fr`` with its measured directions turned to mid-exposure (or unchanged): the
         sensor's rate and acceleration at ``t_s`` from its own attitudes up to this frame.
         ``extracted``: the centroids are this pipeline's streak fits (their along-streak
-        offset modelled, ``_exposure.streak_along_factor``), else given time averages."""
+        offset modelled, ``_exposure.streak_along_factor``), else given time averages.
+        ``fr.ship`` is None here: a frame solved again gets the new solve's, else
+        :meth:`process` makes the first solve's."""
         from shipstar.pipeline._exposure import StreakModel, streak_corrected
 
         h = fr.horizontal
@@ -824,12 +838,17 @@ class SensorProcessor:
                                n_det, n_id, C_icrs, None, ShipAttitude.failed(reason, "single"), None, None,
                                time.perf_counter() - t0, frame.exposure_s, time_source=frame.time_source,
                                windowed=not self._last_full)
+        # a frame the streak correction solves again gets its ship attitude from that solve:
+        # the first solve's is made only when the correction leaves the frame as it is
+        streaks = self._motion is not None and bool(h.solved)
         fr = FrameResult(self.config.name, index, label, frame.utc_jd1, frame.utc_jd2, bool(h.solved), h.reason,
-                         mode, n_det, n_id, C_icrs, h, self._ship(h), site, weather, time.perf_counter() - t0,
-                         frame.exposure_s, solve_inputs=inputs, time_source=frame.time_source,
-                         windowed=not self._last_full)
-        if self._motion is not None and fr.solved:
+                         mode, n_det, n_id, C_icrs, h, None if streaks else self._ship(h), site, weather,
+                         time.perf_counter() - t0, frame.exposure_s, solve_inputs=inputs,
+                         time_source=frame.time_source, windowed=not self._last_full)
+        if streaks:
             fr = self._streaks(fr, t_s, extracted=frame.xy_px is None)
+            if fr.ship is None:
+                fr = replace(fr, ship=self._ship(fr.horizontal))
         if fr.solved:
             self.conditions.add_solved(fr, self._floor_used_px, h, t_s, self._shape)
             fr = replace(fr, noise_floor_arcsec=self.noise_floor_arcsec)
