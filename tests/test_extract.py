@@ -919,6 +919,22 @@ def test_compiled_detection_passes_match_numpy():
     from shipstar.extract._kernels import candidates, local_max, neighbours
 
     rng = np.random.default_rng(17)
+    # sparse frames too (most rows without a candidate, runs of them, a row's last pixels), and
+    # block grids that stop short of the frame (their last row and column cover the rest)
+    for h, w, block, grid, sparse in ((37, 1029, 64, "short", 0.002), (64, 203, 8, "short", 0.05),
+                                      (45, 70, 16, "ceil", 0.0)):
+        image = rng.integers(0, 100, size=(h, w)).astype(np.float32)
+        if sparse:
+            image = np.where(rng.random((h, w)) < sparse, 99.0, 30.0).astype(np.float32)
+            image[5, w - 3:] = 99.0
+            image[h - 1, :9] = 99.0
+        shape = (max(1, h // block), max(1, w // block)) if grid == "short" else (-(-h // block), -(-w // block))
+        level = rng.integers(40, 60, size=shape).astype(np.float32)
+        rows = np.minimum(np.arange(h) // block, level.shape[0] - 1)
+        cols = np.minimum(np.arange(w) // block, level.shape[1] - 1)
+        idx = np.flatnonzero(image > level[rows][:, cols])
+        assert sparse == 0.0 or 0 < idx.size < h * w // 10
+        np.testing.assert_array_equal(candidates(image, level, block), idx)
     for dtype in (np.uint8, np.int8, np.uint16, np.int16, np.uint32, np.int32, np.int64, np.float32, np.float64):
         h, w, block = 45, 70, 16
         image = rng.integers(0, 100, size=(h, w)).astype(dtype)
