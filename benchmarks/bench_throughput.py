@@ -64,7 +64,7 @@ STAGES = {  # profile entry -> label
     "frame_context": "FrameContext (apco13)",
     "hor": "apparent places",
     "sensor_attitude_hor": "refraction + attitude",
-    "_ship": "ship attitude",
+    "ship_from_horizontal": "ship attitude (inside the streak correction too)",
     "_streaks": "streak correction",
     "_epoch": "engine: pairing, motion fit, fusion",
 }
