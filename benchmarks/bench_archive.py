@@ -26,7 +26,8 @@ seen; the correction assumes the same CPU time for the same work, and on 2026-11
 1-worker runs took 25.8-30.6 s of CPU against 25.0-26.5 s for 2 workers in alternated
 runs, which this host cannot tell from a real cost of the 1-worker run: read both
 figures), serial measure against 2
-archive workers, and whether every CSV is byte-identical to serial measure's (md5; the code must not change
+archive workers, and whether every CSV is byte-identical to serial measure's (md5 of the file without its
+``# software`` provenance line, which names the commit: comparable between commits; the code must not change
 while the benchmark runs).
 
 The host is shared: the load average is printed before and after; take the medians.
@@ -100,7 +101,10 @@ def run(root: Path, name: str, command: str, workers: int, chunk_s: float, env: 
     summary = json.loads(proc.stdout)
     process_s = summary["wall"]["process_s"] if "wall" in summary else wall
     connect_s = summary["wall"]["connect_s"] if "wall" in summary else 0.0
-    md5 = hashlib.md5(out.read_bytes()).hexdigest()
+    # the rows' md5: the file without its provenance line (``# software = ...``: the code's
+    # identity, which changes with every commit), comparable from one commit to the next
+    text = b"".join(line for line in out.read_bytes().splitlines(keepends=True) if not line.startswith(b"# software"))
+    md5 = hashlib.md5(text).hexdigest()
     return {"wall_s": wall, "process_s": process_s, "connect_s": connect_s, "cpu_s": cpu, "md5": md5}
 
 
