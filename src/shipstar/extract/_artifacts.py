@@ -142,8 +142,8 @@ class PersistentPixels:
     The remembered detections are one table of ``(pixel key, frame number)`` sorted by key
     (:func:`_pixel_keys`), entries older than the last ``n_frames`` frames dropped as each
     frame is added: a frame's look-up is a few vectorised searches, whatever the number of
-    detections (a Python loop over them and their 9 pixels each was ~0.2 ms a frame at sea,
-    4 % of the whole chain), and a pixel detected in every frame (a field at rest, a hot
+    detections (a Python loop over them and their 9 pixels each was 0.15-0.18 ms a frame at
+    sea, ~3 % of the whole chain), and a pixel detected in every frame (a field at rest, a hot
     pixel) has at most ``n_frames`` entries, not one per frame of the night.
 
     Parameters

@@ -775,7 +775,7 @@ static Py_ssize_t scan_mask(const uint8_t *mask, Py_ssize_t r, Py_ssize_t w, int
 #define DETECT_KERNELS(SUF, T)                                                                          \
     /* mask[c] = row[c] > thr[c], and whether any is: a branch-free loop of its own, which the        \
        compiler vectorises (the row's mask is scanned only when it holds a candidate: most rows hold   \
-       none, and reading back the bytes just stored was ~half the kernel's time) */                     \
+       none, and scanning every row's mask was ~half the kernel's time) */                              \
     static PIXEL_LOOP_CLONES int above_##SUF(const T *restrict row, const T *restrict thr,              \
                                              uint8_t *restrict mask, Py_ssize_t n) {                    \
         uint8_t any = 0;                                                                                \
@@ -2050,7 +2050,6 @@ static PyObject *py_window_peaks(PyObject *self, PyObject *args) {
 
 /* ------------------------------------------------------------------ ring_levels */
 
-/* The k-th smallest of v (n,) (v reordered; Hoare's selection). */
 /* [lo, i) of v[lo..hi] holds the values < p (or <= p), the rest after them; returns i.  Branch-free
  * (every element swapped, the boundary moved by the comparison): on fresh data a branch a value
  * guessed wrong half the time cost ~4x more (the box-noise factor's two medians of 4096 values,
