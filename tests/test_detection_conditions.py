@@ -380,3 +380,60 @@ def test_the_noise_floor_follows_the_seeing(tmp_path):
     assert np.median(h.sigma_rad[h.inliers]) > 2.0 * np.median(h0.sigma_rad[h0.inliers])
 
 
+
+
+def test_the_body_discs_are_each_body_projected_alone():
+    """``BodyPredictor.discs`` projects the Moon and the Sun in one call: the same discs as
+    each body projected alone by the rule written out here (in front of the lens, finite,
+    the masked disc reaching the image), for pointings at, beside and away from them."""
+    from shipstar.camera import camera_preset
+    from shipstar.frames import rot_x, rot_y, rot_z
+    from shipstar.pipeline._skylight import BodyPredictor, mask_radius_px
+    from shipstar.sky.apparent import Site
+    from shipstar.sky.time import utc_jd_from_iso
+
+    cam = camera_preset("A1")
+    jd = utc_jd_from_iso("2013-03-15T12:16:00")
+    site = Site(31.9 * DEG2RAD, 120.3 * DEG2RAD)
+    pred = BodyPredictor(cam)
+    places = pred.places(*jd, site)
+    scale_rad = cam.pixel_mm / cam.f_mm
+
+    def reference(C, uncertainty_px):
+        out = []
+        for name, u, radius_rad in (("moon", places.moon_icrs, places.moon_radius_rad),
+                                    ("sun", places.sun_icrs, places.sun_radius_rad)):
+            v = C.T @ u
+            if not v[0] > 0.0:
+                continue
+            xy = cam.project(v)
+            if not np.all(np.isfinite(xy)):
+                continue
+            r_disc = radius_rad / scale_rad
+            r_mask = mask_radius_px(r_disc) + uncertainty_px
+            x, y = float(xy[0]), float(xy[1])
+            gap = math.hypot(max(-0.5 - x, 0.0, x - (cam.width_px - 0.5)),
+                             max(-0.5 - y, 0.0, y - (cam.height_px - 0.5)))
+            if gap < r_mask:
+                out.append((name, (x, y), r_disc, r_mask))
+        return out
+
+    def pointing_at(u, off_rad, roll_rad):
+        """C_icrs_from_sensor with the boresight (sensor X) ``off_rad`` from ``u``."""
+        x = u / np.linalg.norm(u)
+        y = np.cross([0.0, 0.0, 1.0], x)
+        y /= np.linalg.norm(y)
+        C = np.column_stack([x, y, np.cross(x, y)])                     # boresight on u
+        return C @ rot_x(roll_rad) @ rot_z(off_rad) @ rot_y(0.3 * off_rad)
+
+    rng = np.random.default_rng(5)
+    n_moon = n_sun = 0
+    for body in (places.moon_icrs, places.sun_icrs, -places.moon_icrs):
+        for off_deg in (0.0, 2.0, 5.0, 6.5, 8.0, 20.0, 89.0, 95.0, 170.0):
+            C = pointing_at(body, off_deg * DEG2RAD, rng.uniform(0, 2 * math.pi))
+            for unc in (0.0, 40.0):
+                got = [(d.name, d.xy_px, d.disc_radius_px, d.mask_radius_px) for d in pred.discs(*jd, site, C, unc)]
+                assert got == reference(C, unc)
+                n_moon += any(g[0] == "moon" for g in got)
+                n_sun += any(g[0] == "sun" for g in got)
+    assert n_moon >= 4 and n_sun >= 4                  # the cases include discs in and beside the field

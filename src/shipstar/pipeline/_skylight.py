@@ -75,14 +75,13 @@ class BodyPredictor:
         places = self.places(utc_jd1, utc_jd2, site)
         C = np.asarray(C_icrs_from_sensor, float)
         scale_rad = cam.pixel_mm / cam.f_mm
+        bodies = (("moon", places.moon_icrs, places.moon_radius_rad), ("sun", places.sun_icrs, places.sun_radius_rad))
+        v = np.stack([C.T @ u for _, u, _ in bodies])            # (2, 3), each body as alone
+        xy_all = cam.project(v)                                 # one call for both (the same per-row arithmetic)
+        ok = (v[:, 0] > 0.0) & np.isfinite(xy_all).all(axis=1)
         out = []
-        for name, u, radius_rad in (("moon", places.moon_icrs, places.moon_radius_rad),
-                                    ("sun", places.sun_icrs, places.sun_radius_rad)):
-            v = C.T @ u
-            if v[0] <= 0.0:
-                continue
-            xy = cam.project(v)
-            if not np.all(np.isfinite(xy)):
+        for (name, _, radius_rad), xy, good in zip(bodies, xy_all, ok.tolist()):
+            if not good:
                 continue
             r_disc = radius_rad / scale_rad
             r_mask = mask_radius_px(r_disc) + float(uncertainty_px)
