@@ -283,7 +283,7 @@ def test_persistent_pixels_are_found_while_the_stars_move():
     hot = np.array([[100.0, 200.0], [500.0, 600.0]])
     pp = PersistentPixels()
 
-    def shift(then, index, now, xy):           # tokens: the field's offset along x (px)
+    def shift(then, index, now, xy, star):     # tokens: the field's offset along x (px)
         return np.abs(now - np.asarray(then, float)[index])
 
     rng = np.random.default_rng(0)
@@ -315,7 +315,7 @@ def _persistent_brute_force(history, xy, token, displacement_px, n_frames, min_c
         count = 0
         for tok, pixels in frames:
             if any(abs(x - i) <= 1 and abs(y - j) <= 1 for i, j in pixels):
-                moved = displacement_px([tok], np.array([0]), token, xy[m:m + 1])[0]
+                moved = displacement_px([tok], np.array([0]), token, xy[m:m + 1], np.array([0]))[0]
                 count += moved >= min_motion_px
         out[m] = count >= min_count
     return out
@@ -329,7 +329,7 @@ def test_persistent_pixels_follow_the_rule_and_stay_bounded_at_rest():
     0.33 ms flat now)."""
     from shipstar.extract._artifacts import PersistentPixels
 
-    def shift(then, index, now, xy):
+    def shift(then, index, now, xy, star):
         return np.abs(now - np.asarray(then, float)[index])
 
     rng = np.random.default_rng(3)
@@ -355,6 +355,72 @@ def test_persistent_pixels_follow_the_rule_and_stay_bounded_at_rest():
     for k in range(3000):
         rest.update(stars + rng.normal(0, 0.05, stars.shape), 0.0, shift)
     assert rest.n_pixels() < 200 and rest.entries_per_pixel_max() == rest.n_frames
+
+
+def test_compiled_persistent_lookup_and_merge_are_the_numpy_reference():
+    """The compiled look-up (:func:`persistent_pairs`) against ``_pairs_python`` and the
+    compiled merge against the stable sort of the live entries and the new keys, frame by
+    frame of random nights: the first frames (the window reaching before frame 0), a field
+    at rest (a pixel in every frame, its neighbours in some), moving stars, a detection
+    twice at one pixel, frames without detections; and a table frame beyond the window
+    refused."""
+    from shipstar.extract._artifacts import _NEAR, PersistentPixels, _pixel_keys
+    from shipstar.extract._kernels import persistent_merge, persistent_pairs
+
+    rng = np.random.default_rng(11)
+    n_pairs = 0
+    for trial in range(4):
+        n_frames, min_count = int(rng.integers(2, 9)), int(rng.integers(1, 4))
+        pp = PersistentPixels(n_frames=n_frames, min_count=min_count)
+        still = rng.uniform(0, 80, (12, 2))
+        for k in range(120):
+            moving = rng.uniform(0, 300 if trial % 2 else 30, (int(rng.integers(0, 20)), 2))
+            xy = np.vstack([still + rng.normal(0, 0.4, still.shape), moving, still[:2]])[:int(rng.integers(0, 40))]
+            keys = _pixel_keys(xy)
+            oldest = pp._frame - pp.n_frames
+            want = pp._pairs_python(keys, oldest) if pp._keys.size else (np.zeros(0, np.int64),) * 2
+            got = persistent_pairs(pp._keys, pp._frames, keys, _NEAR, oldest, pp.n_frames, pp.min_count)
+            for g, w in zip(got, want):
+                np.testing.assert_array_equal(g, w, err_msg=f"trial {trial} frame {k}")
+            n_pairs += got[0].size
+            new = np.unique(keys)
+            live = pp._frames > oldest
+            all_keys = np.concatenate([pp._keys[live], new])
+            all_frames = np.concatenate([pp._frames[live], np.full(new.size, pp._frame, dtype=np.int64)])
+            order = np.argsort(all_keys, kind="stable")
+            merged = persistent_merge(pp._keys, pp._frames, new, oldest, pp._frame)
+            np.testing.assert_array_equal(merged[0], all_keys[order])
+            np.testing.assert_array_equal(merged[1], all_frames[order])
+            pp.update(xy, 0.0)
+    assert n_pairs > 1000
+    with pytest.raises(ValueError, match="after the window"):
+        persistent_pairs(np.array([5]), np.array([10]), np.array([5]), _NEAR, 0, 4, 1)
+
+
+def test_the_displacement_finds_each_star_direction_once_with_the_same_values():
+    """``ConditionMonitor._displacement_px`` unprojects each star once: the same values as
+    every pair's row unprojected (the Newton inverse of a distorted camera takes the same
+    steps on the same distinct positions), for a star paired with many frames."""
+    from shipstar.camera import camera_preset
+    from shipstar.frames import rot_x, rot_z
+    from shipstar.pipeline import PipelineOptions
+    from shipstar.pipeline._conditions import ConditionMonitor
+
+    cam = camera_preset("seed002")
+    assert not cam.distortion.is_zero
+    mon = ConditionMonitor(cam, PipelineOptions())
+    rng = np.random.default_rng(2)
+    xy = np.column_stack([rng.uniform(0, cam.width_px, 30), rng.uniform(0, cam.height_px, 30)])
+    C_now = rot_z(0.3) @ rot_x(0.1)
+    C_then = [C_now @ rot_z(a) @ rot_x(b) for a, b in rng.normal(0, 2e-3, (12, 2))]
+    star = np.sort(rng.integers(0, 30, 200))
+    index = rng.integers(0, 12, 200)
+    got = mon._displacement_px(C_then, index, C_now, xy, star)
+    w = cam.unproject(xy[star])                                    # every pair's row, as before
+    then = cam.project(np.einsum("mi,mij->mj", w, (C_now.T @ np.asarray(C_then))[index]))
+    want = np.hypot(*(then - xy[star]).T)
+    np.testing.assert_array_equal(got, want)
+    assert np.ptp(want) > 1.0
 
 
 # --------------------------------------------------------------------------- seeing

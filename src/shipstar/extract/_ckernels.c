@@ -34,6 +34,8 @@
  *   point_start       the point fits' start values (centre of light of the central 3 x 3, flux)
  *   too_sharp         hot pixels and cosmic rays: peaks sharper than the PSF allows
  *   component_stats   per star: pixels, peak, flags, thresholded centre of gravity and moments
+ *   persistent_pairs  persistent pixels: each detection with the remembered frames near its pixel
+ *   persistent_merge  persistent pixels: the remembered table with a frame's detections added
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -2366,6 +2368,87 @@ static PyObject *py_cho_solve(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+/* ------------------------------------------------------------------ persistent pixels (_artifacts) */
+
+/* First index of the sorted keys[0..T) not below q. */
+static Py_ssize_t lower_bound_i8(const int64_t *keys, Py_ssize_t T, int64_t q) {
+    Py_ssize_t lo = 0, hi = T;
+    while (lo < hi) {
+        Py_ssize_t mid = lo + (hi - lo) / 2;
+        if (keys[mid] < q) lo = mid + 1; else hi = mid;
+    }
+    return lo;
+}
+
+/* persistent_pairs(table_keys (T,) i8 sorted, table_frames (T,) i8, T, keys (N,) i8, N, near (9,) i8,
+ * oldest, window, min_count, stamp (window,) i8 work, out_star (N window,) i8, out_frame (N window,)
+ * i8) -> P, or -1 when a remembered frame lies outside (oldest, oldest + window]:
+ * PersistentPixels._pairs_python's result: each detection n with each remembered frame after ``oldest``
+ * that had a detection at one of keys[n] + near[0..9), for the detections with at least
+ * min_count such frames; star-major, frames increasing (the order of np.unique on
+ * star * span + frame).  A frame is marked in ``stamp`` with the detection's number + 1, so
+ * the work array is never cleared. */
+static PyObject *py_persistent_pairs(PyObject *self, PyObject *args) {
+    Py_buffer tk_b, tf_b, k_b, near_b, st_b, os_b, of_b;
+    Py_ssize_t T, N;
+    long long oldest, window, min_count;
+    if (!PyArg_ParseTuple(args, "y*y*ny*ny*LLLw*w*w*", &tk_b, &tf_b, &T, &k_b, &N, &near_b, &oldest, &window,
+                          &min_count, &st_b, &os_b, &of_b)) return NULL;
+    Py_ssize_t P = 0;
+    int bad = 0;
+    Py_BEGIN_ALLOW_THREADS
+    const int64_t *tk = tk_b.buf, *tf = tf_b.buf, *keys = k_b.buf, *near = near_b.buf;
+    int64_t *stamp = st_b.buf, *out_star = os_b.buf, *out_frame = of_b.buf;
+    for (long long w = 0; w < window; w++) stamp[w] = 0;
+    for (Py_ssize_t n = 0; n < N && !bad; n++) {
+        long long count = 0;
+        for (int d = 0; d < 9; d++) {
+            int64_t q = keys[n] + near[d];
+            for (Py_ssize_t j = lower_bound_i8(tk, T, q); j < T && tk[j] == q; j++) {
+                long long f = tf[j] - oldest - 1;
+                if (f < 0) continue;                        /* older than the window */
+                if (f >= window) { bad = 1; break; }
+                if (stamp[f] != n + 1) { stamp[f] = n + 1; count++; }
+            }
+        }
+        if (count < min_count || bad) continue;
+        for (long long w = 0; w < window; w++)
+            if (stamp[w] == n + 1) { out_star[P] = n; out_frame[P] = oldest + 1 + w; P++; }
+    }
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&tk_b); PyBuffer_Release(&tf_b); PyBuffer_Release(&k_b); PyBuffer_Release(&near_b);
+    PyBuffer_Release(&st_b); PyBuffer_Release(&os_b); PyBuffer_Release(&of_b);
+    return PyLong_FromSsize_t(bad ? -1 : P);
+}
+
+/* persistent_merge(table_keys (T,) i8 sorted, table_frames (T,) i8, T, new_keys (U,) i8 sorted, U,
+ * oldest, frame, out_keys (T + U,) i8, out_frames (T + U,) i8) -> the new table's length: the
+ * entries after ``oldest`` and the new keys (each with ``frame``) merged in key order, an old
+ * entry before a new one of the same key (a stable sort of the old live entries followed by
+ * the new ones gives this order). */
+static PyObject *py_persistent_merge(PyObject *self, PyObject *args) {
+    Py_buffer tk_b, tf_b, nk_b, ok_b, of_b;
+    Py_ssize_t T, U;
+    long long oldest, frame;
+    if (!PyArg_ParseTuple(args, "y*y*ny*nLLw*w*", &tk_b, &tf_b, &T, &nk_b, &U, &oldest, &frame, &ok_b, &of_b))
+        return NULL;
+    Py_ssize_t m = 0;
+    Py_BEGIN_ALLOW_THREADS
+    const int64_t *tk = tk_b.buf, *tf = tf_b.buf, *nk = nk_b.buf;
+    int64_t *ok = ok_b.buf, *of = of_b.buf;
+    Py_ssize_t i = 0, u = 0;
+    while (i < T || u < U) {
+        if (i < T && tf[i] <= oldest) { i++; continue; }   /* no longer in the window */
+        if (i < T && (u >= U || tk[i] <= nk[u])) { ok[m] = tk[i]; of[m] = tf[i]; i++; }
+        else { ok[m] = nk[u]; of[m] = frame; u++; }
+        m++;
+    }
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&tk_b); PyBuffer_Release(&tf_b); PyBuffer_Release(&nk_b);
+    PyBuffer_Release(&ok_b); PyBuffer_Release(&of_b);
+    return PyLong_FromSsize_t(m);
+}
+
 static PyMethodDef methods[] = {
     {"streak_equations", py_streak_equations, METH_VARARGS, "Normal equations of the smeared-PSF model."},
     {"streak_fit", py_streak_fit, METH_VARARGS, "Levenberg-Marquardt fits of the smeared-PSF model."},
@@ -2398,6 +2481,8 @@ static PyMethodDef methods[] = {
     {"point_start", py_point_start, METH_VARARGS, "Start values of the point fits."},
     {"too_sharp", py_too_sharp, METH_VARARGS, "Peaks sharper than the PSF allows."},
     {"component_stats", py_component_stats, METH_VARARGS, "Per-star sums over the stars' pixels."},
+    {"persistent_pairs", py_persistent_pairs, METH_VARARGS, "Detections with the remembered frames near their pixel."},
+    {"persistent_merge", py_persistent_merge, METH_VARARGS, "The remembered detections with a frame's added."},
     {NULL, NULL, 0, NULL},
 };
 

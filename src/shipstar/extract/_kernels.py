@@ -22,7 +22,9 @@ Each wrapper hands its C kernel C-contiguous arrays of the dtypes it reads and w
   the order of their first pixel (as ``scipy.sparse.csgraph.connected_components`` on
   the runs' graph numbered them);
 - :func:`suppress`: greedy suppression of the peaks within a stronger peak's footprint;
-- :func:`erf`: the error function of an array (libm).
+- :func:`erf`: the error function of an array (libm);
+- :func:`persistent_pairs`, :func:`persistent_merge`: the persistent-pixel test's look-up
+  and its table's update (``_artifacts.PersistentPixels``).
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ from shipstar.extract._scratch import scratch
 __all__ = ["streak_equations", "streak_fit", "gauss_fit", "gauss_normal", "block_stats", "grid_box_sums",
            "value_step", "median3", "mesh_at",
            "candidates", "local_max", "neighbours", "tap_sum", "line_filter", "box3", "label_runs", "region_shape",
-           "suppress", "erf"]
+           "suppress", "erf", "persistent_pairs", "persistent_merge"]
 
 _TABLE_STEPS = 1024
 
@@ -548,3 +550,38 @@ def median_abs_deviation(x) -> float:
     if x.size == 0:
         raise ValueError("median_abs_deviation of no values")
     return _ckernels.median_abs_deviation(x, x.size)
+
+
+def _i8(a) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.int64).reshape(-1)
+
+
+def persistent_pairs(table_keys, table_frames, keys, near, oldest: int, window: int, min_count: int) -> tuple:
+    """``(stars (P,), frames (P,))`` int64: each of the detections' pixel ``keys`` (N,) with
+    each remembered frame after ``oldest`` (up to ``oldest + window``) whose entry in the
+    sorted table ``table_keys`` / ``table_frames`` (T,) lies at one of ``keys[n] + near``
+    (9,), for the detections with at least ``min_count`` such frames; star-major, frames
+    increasing (``_artifacts.PersistentPixels._pairs_python``'s arrays)."""
+    tk, tf, keys, near = _i8(table_keys), _i8(table_frames), _i8(keys), _i8(near)
+    window = int(window)
+    if tf.size != tk.size or near.size != 9 or window < 1:
+        raise ValueError("persistent_pairs: arrays of inconsistent lengths")
+    stamp = np.empty(window, dtype=np.int64)
+    stars, frames = np.empty(keys.size * window, dtype=np.int64), np.empty(keys.size * window, dtype=np.int64)
+    n = _ckernels.persistent_pairs(tk, tf, tk.size, keys, keys.size, near, int(oldest), window, int(min_count),
+                                   stamp, stars, frames)
+    if n < 0:
+        raise ValueError("persistent_pairs: a remembered frame after the window")
+    return stars[:n], frames[:n]
+
+
+def persistent_merge(table_keys, table_frames, new_keys, oldest: int, frame: int) -> tuple:
+    """``(keys, frames)``: the table's entries after ``oldest`` and the sorted distinct
+    ``new_keys`` (each with ``frame``) merged in key order, old entries first among equal
+    keys (a stable sort of the two concatenated)."""
+    tk, tf, nk = _i8(table_keys), _i8(table_frames), _i8(new_keys)
+    if tf.size != tk.size:
+        raise ValueError("persistent_merge: arrays of inconsistent lengths")
+    keys, frames = np.empty(tk.size + nk.size, dtype=np.int64), np.empty(tk.size + nk.size, dtype=np.int64)
+    n = _ckernels.persistent_merge(tk, tf, tk.size, nk, nk.size, int(oldest), int(frame), keys, frames)
+    return keys[:n], frames[:n]

@@ -447,12 +447,19 @@ class ConditionMonitor:
         theta = None if shape is None else np.array([shape[0][0], shape[0][1], shape[1][1], floor_used_px ** 2])
         self.noise_model.add(z[good], X[good], t_s, theta)
 
-    def _displacement_px(self, C_then, index, C_now, xy_px) -> np.ndarray:
-        """``(M,)``: how far (px) a star now at ``xy_px[m]`` (M, 2) was from there with the
-        attitude ``C_then[index[m]]`` (a list of (3, 3) J2000 attitudes), the attitude now
-        ``C_now``: one batched projection for every pair of the frame."""
+    def _displacement_px(self, C_then, index, C_now, xy_px, star) -> np.ndarray:
+        """``(M,)``: how far (px) the star now at ``xy_px[star[m]]`` (``xy_px`` (N, 2),
+        ``star`` (M,) non-decreasing) was from there with the attitude ``C_then[index[m]]``
+        (a list of (3, 3) J2000 attitudes), the attitude now ``C_now``: one batched
+        projection for every pair of the frame.  Each star's direction is found once (at
+        rest a star pairs with ~49 frames), from the stars the pairs hold: the same
+        distinct positions as the pairs' rows, so the Newton inverse of the distortion takes
+        the same steps and gives the same directions."""
         cam = self.camera
-        w = cam.unproject(xy_px)                                         # (M, 3) sensor
+        star = np.asarray(star, np.int64)
+        first = np.ones(star.size, dtype=bool)
+        first[1:] = star[1:] != star[:-1]
+        w = cam.unproject(xy_px[star[first]])[np.cumsum(first) - 1]       # (M, 3) sensor
         C_now_from_then = np.asarray(C_now).T @ np.asarray(C_then, float)   # (U, 3, 3)
         then = cam.project(np.einsum("mi,mij->mj", w, C_now_from_then[index]))
-        return np.hypot(*(then - xy_px).T)
+        return np.hypot(*(then - xy_px[star]).T)
