@@ -395,6 +395,8 @@ def test_compiled_persistent_lookup_and_merge_are_the_numpy_reference():
     assert n_pairs > 1000
     with pytest.raises(ValueError, match="after the window"):
         persistent_pairs(np.array([5]), np.array([10]), np.array([5]), _NEAR, 0, 4, 1)
+    with pytest.raises(ValueError, match="sorted, distinct"):
+        persistent_merge(np.array([5]), np.array([1]), np.array([7, 3]), 0, 2)
 
 
 def test_the_displacement_finds_each_star_direction_once_with_the_same_values():

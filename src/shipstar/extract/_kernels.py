@@ -582,6 +582,8 @@ def persistent_merge(table_keys, table_frames, new_keys, oldest: int, frame: int
     tk, tf, nk = _i8(table_keys), _i8(table_frames), _i8(new_keys)
     if tf.size != tk.size:
         raise ValueError("persistent_merge: arrays of inconsistent lengths")
+    if nk.size > 1 and not np.all(nk[1:] > nk[:-1]):
+        raise ValueError("persistent_merge needs sorted, distinct new keys")
     keys, frames = np.empty(tk.size + nk.size, dtype=np.int64), np.empty(tk.size + nk.size, dtype=np.int64)
     n = _ckernels.persistent_merge(tk, tf, tk.size, nk, nk.size, int(oldest), int(frame), keys, frames)
     return keys[:n], frames[:n]
