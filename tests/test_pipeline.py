@@ -185,6 +185,26 @@ def test_scan_frames_reads_times_and_checks_order(tmp_path):
         scan_frames(tmp_path)
 
 
+def test_frame_paths_are_in_the_order_of_sorted_paths(tmp_path):
+    """The name-keyed sort gives the order ``sorted`` gives the Path objects themselves (the
+    reference), for names of mixed lengths, cases, digits and punctuation, made in a
+    shuffled order."""
+    import random
+
+    from shipstar.pipeline._frames import frame_paths, in_name_order
+
+    names = ["A1_0010.fits", "A1_0002.fits", "A1_01.fits", "a1_0003.fits", "B.fits", "A1-0004.fits",
+             "A1_0002.fit", "A1_0002.fits.gz", "Z.fts", "A1_000 5.fits", "\u00e9.fits", "_x.fits", "10.fits", "9.fits"]
+    random.Random(7).shuffle(names)
+    for name in names:
+        (tmp_path / name).write_bytes(b"")
+    (tmp_path / "notes.txt").write_text("x")
+    listed = list(tmp_path.iterdir())
+    assert in_name_order(listed) == sorted(listed)
+    assert in_name_order(reversed(sorted(listed))) == sorted(listed)
+    assert frame_paths(tmp_path) == sorted(p for p in listed if p.suffix != ".txt")
+
+
 def test_scan_frames_bad_input(tmp_path):
     with pytest.raises(ShipstarError, match="not a directory"):
         scan_frames(tmp_path / "missing")

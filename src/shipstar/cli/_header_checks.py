@@ -56,11 +56,12 @@ def check_fits_dir(directory, check, date_obs_is: str) -> None:
 
     from shipstar._fitsio import is_fits_name, read_fits_header
     from shipstar.errors import ShipstarError
+    from shipstar.pipeline._frames import in_name_order
 
     root = Path(directory)
     if not root.is_dir():
         return
-    for path in sorted(p for p in root.iterdir() if p.is_file() and is_fits_name(p.name)):
+    for path in in_name_order(p for p in root.iterdir() if p.is_file() and is_fits_name(p.name)):
         try:
             info = read_fits_header(path, date_obs_is=date_obs_is)
         except ShipstarError:
