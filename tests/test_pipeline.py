@@ -205,6 +205,34 @@ def test_frame_paths_are_in_the_order_of_sorted_paths(tmp_path):
     assert frame_paths(tmp_path) == sorted(p for p in listed if p.suffix != ".txt")
 
 
+def test_scan_frames_reports_its_progress_block_by_block(tmp_path, monkeypatch):
+    """The index read in blocks for its progress gives the frames of the one-block read, and
+    a bad header stops it at the same frame with the same error (no block read after it)."""
+    import shipstar.pipeline._frames as frames_module
+
+    for k in range(5):
+        _write_fits(tmp_path / f"f{k}.fits", f"2013-03-15T12:16:00.{k}00")
+    whole = scan_frames(tmp_path)
+    monkeypatch.setattr(frames_module, "PROGRESS_BLOCK_FILES", 2)
+    calls = []
+    blocks = scan_frames(tmp_path, progress=lambda done, total: calls.append((done, total)))
+    assert calls == [(2, 5), (4, 5), (5, 5)]
+    assert [(f.label, f.utc_jd1, f.utc_jd2, f.time_source) for f in blocks] == \
+        [(f.label, f.utc_jd1, f.utc_jd2, f.time_source) for f in whole]
+    (tmp_path / "f2.fits").unlink()
+    _write_fits(tmp_path / "f2.fits", None)                   # f2 has no DATE-OBS now
+    with pytest.raises(ShipstarError) as one:
+        scan_frames(tmp_path)
+    calls.clear()
+    read, original = [], frames_module.read_header_block
+    monkeypatch.setattr(frames_module, "read_header_block",
+                        lambda paths, date_obs_is: read.append([p.name for p in paths]) or original(paths, date_obs_is))
+    with pytest.raises(ShipstarError) as blockwise:
+        scan_frames(tmp_path, progress=lambda done, total: calls.append((done, total)))
+    assert str(blockwise.value) == str(one.value) and "f2.fits has no DATE-OBS" in str(one.value)
+    assert calls == [(2, 5)] and read == [["f0.fits", "f1.fits"], ["f2.fits", "f3.fits"]]
+
+
 def test_scan_frames_bad_input(tmp_path):
     with pytest.raises(ShipstarError, match="not a directory"):
         scan_frames(tmp_path / "missing")

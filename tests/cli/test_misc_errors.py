@@ -72,6 +72,18 @@ def test_measure_reads_gzipped_frames(sea, tmp_path):
     assert s["n_frames"] == s["n_solved"] == 5
 
 
+def test_measure_shows_the_index_then_the_frames(sea, tmp_path):
+    """--progress: each sensor's indexing has its bar before the frames' (a night's index
+    takes tens of seconds)."""
+    proc = _shipstar(["measure", "--sensor", f"A1={sea / 'sea' / 'A1'}", "--install", str(sea / "A1.toml"),
+                      "--track", str(sea / "sea" / "track.csv"), "--weather", str(sea / "sea" / "weather.csv"),
+                      "--workers", "1", "--out", "att.csv", "--progress"], tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    err = proc.stderr
+    assert "index A1 [" in err and "] 5/5" in err, err
+    assert "frames [" in err and err.index("index A1 [") < err.index("frames ["), err
+
+
 def test_calibrate_intrinsics_skips_a_truncated_frame_and_counts_it(sea, tmp_path):
     frames = tmp_path / "frames"
     shutil.copytree(sea / "sea" / "A1", frames)

@@ -250,13 +250,15 @@ def _first_frame_time(directory, date_obs_is: str) -> tuple:
     return read_fits_header(frame_paths(directory)[0], date_obs_is=date_obs_is).mid_utc_jd()
 
 
-def _sources(args, configs, track=None, weather=None, header_reader=None) -> list:
+def _sources(args, configs, track=None, weather=None, header_reader=None, progress=None) -> list:
     """Each sensor's indexed FITS frames (headers only), each header cross-checked
     (SENSOR/INSTRUME, image size, SITELAT/SITELONG, PRESSURE/TEMPERAT; ``args.header_checks``).
 
     ``header_reader(paths, date_obs_is)``, optional, starts reading the headers of
     ``paths`` elsewhere and returns their blocks (``scan_frames``' ``headers``): every
-    sensor's are started before the first is taken (``measure-archive``: on the cluster)."""
+    sensor's are started before the first is taken (``measure-archive``: on the cluster).
+    ``progress(label, done, total)``, optional: each sensor's indexing as it goes
+    (:class:`~shipstar.pipeline._progress.ProgressBar`, label ``index NAME``)."""
     from shipstar.cli._header_checks import header_check
     from shipstar.pipeline._frames import frame_paths
     from shipstar.pipeline._sources import FitsDirectorySource
@@ -275,8 +277,9 @@ def _sources(args, configs, track=None, weather=None, header_reader=None) -> lis
                              position_flags=not getattr(args, "track", None),
                              weather_flags=not getattr(args, "weather", None), sensor=name)
         args.header_checks.append(check)
+        shown = None if progress is None else (lambda done, total, name=name: progress(f"index {name}", done, total))
         sources.append(FitsDirectorySource(name, directory, date_obs_is=args.date_obs_is, check=check,
-                                           headers=given))
+                                           headers=given, progress=shown))
     return sources
 
 
@@ -484,7 +487,8 @@ def run(args) -> int:
     pool = WorkerPool(job, n_workers) if n_workers > 1 else None     # warms up while the frames are indexed
     bar = ProgressBar(True if args.progress else None)
     try:
-        sources = _sources(args, job.configs, track, weather, header_reader=pool.read_headers if pool else None)
+        sources = _sources(args, job.configs, track, weather, header_reader=pool.read_headers if pool else None,
+                           progress=bar)
         _check_covered(sources, track, weather)
         swapped = swap_check(job.configs, sources, track, weather, job.options)
         if swapped:

@@ -217,10 +217,12 @@ def _plan_output(session) -> None:
         session.resume = True
 
 
-def _prepare(session, header_reader=None) -> None:
+def _prepare(session, header_reader=None, progress=None) -> None:
     """As ``shipstar measure`` does before processing: the job, the frames' index (its
     headers read by ``header_reader``, :class:`~shipstar.pipeline._archive.HeaderReader`:
-    on the cluster), the coverage and swap checks, and the CSV's comment lines."""
+    on the cluster), the coverage and swap checks, and the CSV's comment lines; ``progress``:
+    the index's progress (:func:`shipstar.cli._cmd_measure._sources`; given when the
+    session is prepared before any processing, so that it has the terminal's line to itself)."""
     from shipstar.cli._cmd_measure import _check_covered, _csv_comments, _eop, _job, _override_comments, \
         _site_and_weather, _sources
     from pathlib import Path
@@ -238,7 +240,7 @@ def _prepare(session, header_reader=None) -> None:
     session.truth = TruthTable.read_csv(a.truth) if a.truth else None
     # the workers must run this code in this environment (a remote worker's other checkout: other rows)
     session.job = replace(_job(a, track, weather), code_identity=code_identity(), environment=environment())
-    session.sources = _sources(a, session.job.configs, track, weather, header_reader=header_reader)
+    session.sources = _sources(a, session.job.configs, track, weather, header_reader=header_reader, progress=progress)
     for src in session.sources:                     # the workers may run in another directory
         src.directory = str(Path(src.directory).resolve())
     _check_covered(session.sources, track, weather)
@@ -612,7 +614,7 @@ def run(args) -> int:
             timing["connect_s"] = time.perf_counter() - t0
             warming = warm_workers(client, cameras)
         if len(todo) == 1:                          # one session: prepared first, an error is the command's
-            _prepare(todo[0], HeaderReader(client, retries=args.retries))
+            _prepare(todo[0], HeaderReader(client, retries=args.retries), progress=bar)
             print_overrides("measure-archive", todo[0].overrides)
         with StopOnSignals() as stop:
             if len(todo) > 1:                       # each session prepared when due, or the next one ahead

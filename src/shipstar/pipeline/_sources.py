@@ -105,6 +105,8 @@ class FitsDirectorySource(FrameSource):
         Called with each frame's header (:func:`shipstar.pipeline.scan_frames`).
     headers : iterable of (infos, error), optional
         The headers, read elsewhere (:func:`shipstar.pipeline.scan_frames`' ``headers``).
+    progress : callable, optional
+        ``progress(done, total)`` as the headers are indexed (:func:`shipstar.pipeline.scan_frames`).
 
     Raises
     ------
@@ -112,12 +114,13 @@ class FitsDirectorySource(FrameSource):
         As :func:`shipstar.pipeline.scan_frames` (no frames, no time, out of order).
     """
 
-    def __init__(self, name: str, directory, *, date_obs_is: str = "start", check=None, headers=None):
+    def __init__(self, name: str, directory, *, date_obs_is: str = "start", check=None, headers=None,
+                 progress=None):
         from shipstar.pipeline._frames import scan_frames
 
         self.name = name
         self.directory = str(Path(directory))
-        frames = scan_frames(directory, date_obs_is=date_obs_is, check=check, headers=headers)
+        frames = scan_frames(directory, date_obs_is=date_obs_is, check=check, headers=headers, progress=progress)
         self._names = [f.label for f in frames]
         self._jd1 = np.array([f.utc_jd1 for f in frames])
         self._jd2 = np.array([f.utc_jd2 for f in frames])
