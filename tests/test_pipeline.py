@@ -164,6 +164,33 @@ def _write_fits(path, date_obs=None, data=None, exptime_s=0.08):
     hdu.writeto(path)
 
 
+def test_a_frames_prior_and_site_are_worked_out_once_and_follow_the_history(sea):
+    """The prior asked again for the same time and history is the same read-only array; a new
+    solved frame gives the new extrapolation (not the remembered one); the site is the
+    track's at each frame's time."""
+    from shipstar import frames as F
+    from shipstar.pipeline._sensor import SensorProcessor, extrapolate_rotation
+
+    spec, _ = sea
+    track, weather, _ = _tables(spec)
+    proc = SensorProcessor(_true_configs(spec)[0], track, weather, PipelineOptions())
+    C0 = np.eye(3)
+    C1 = F.rot_z(0.004) @ F.rot_x(0.002)
+    C2 = C1 @ F.rot_y(0.003) @ F.rot_z(-0.001)
+    proc._history = [(0.0, C0), (0.1, C1)]
+    first = proc._prior(0.2)
+    assert proc._prior(0.2) is first and not first.flags.writeable
+    np.testing.assert_array_equal(first, extrapolate_rotation(C0, C1, (0.2 - 0.1) / (0.1 - 0.0)))
+    proc._history = proc._history[-1:] + [(0.2, C2)]            # as _identify appends a solved frame
+    again = proc._prior(0.2)
+    np.testing.assert_array_equal(again, extrapolate_rotation(C1, C2, 0.0))
+    assert not np.array_equal(again, first)
+    np.testing.assert_array_equal(proc._prior(0.3), extrapolate_rotation(C1, C2, (0.3 - 0.2) / (0.2 - 0.1)))
+    for k in (0, 1, 1, 2):
+        frame = Frame(track.jd1_0, track.jd2_0 + 0.1 * k / DAY_S, f"f{k}", xy_px=np.zeros((0, 2)))
+        assert proc._site(frame) == track.site(frame.utc_jd1, frame.utc_jd2)
+
+
 def test_scan_frames_reads_times_and_checks_order(tmp_path):
     from shipstar.sky.time import utc_jd_from_iso
 

@@ -492,6 +492,11 @@ class SensorProcessor:
         self._database = database
         self.lookup = default_lookup() if lookup is None else lookup
         self._history: list = []          # (t_s, C_icrs_from_sensor) of the last solved frames
+        # the last prior and site worked out (a frame's extraction and its identification or
+        # attitude ask for the same ones): (t_s, the history it came from, prior) and
+        # (utc_jd1, utc_jd2, site)
+        self._prior_memo = None
+        self._site_memo = None
         # the streak correction's motion fit: this sensor's last solved attitudes (sensor axes)
         correct = options.streak_correction and config.installation is not None
         self._motion = MotionWindow(1) if correct else None
@@ -544,7 +549,7 @@ class SensorProcessor:
         prior = self._prior(t_s) if math.isfinite(t_s) else None
         if prior is not None and site is None:
             try:
-                site = self.track.site(frame.utc_jd1, frame.utc_jd2)
+                site = self._site(frame)
             except ShipstarError:
                 prior = None
         extrapolated = len(self._history) >= 2 and t_s - self._history[-1][0] <= _MAX_PRIOR_GAP_S
@@ -714,14 +719,31 @@ class SensorProcessor:
         return cam.project(v @ C)                                     # sensor axes: C^T v, row-wise
 
     def _prior(self, t_s: float):
-        """Predicted C_icrs_from_sensor at ``t_s`` from the last two solved frames (or None)."""
+        """Predicted C_icrs_from_sensor at ``t_s`` from the last two solved frames (or None);
+        the same (read-only) array again when asked again with the same ``t_s`` and history."""
         if not self._history:
             return None
         t_b, C_b = self._history[-1]
         if len(self._history) < 2 or t_s - t_b > _MAX_PRIOR_GAP_S:
             return C_b
+        memo = self._prior_memo
+        if memo is not None and memo[0] == t_s and memo[1] is self._history:
+            return memo[2]
         t_a, C_a = self._history[-2]
-        return extrapolate_rotation(C_a, C_b, (t_s - t_b) / (t_b - t_a))
+        prior = extrapolate_rotation(C_a, C_b, (t_s - t_b) / (t_b - t_a))
+        prior.flags.writeable = False
+        self._prior_memo = (t_s, self._history, prior)
+        return prior
+
+    def _site(self, frame):
+        """The track's :class:`~shipstar.sky.apparent.Site` at the frame's time (raises as
+        :meth:`Track.site`), worked out once a frame."""
+        memo = self._site_memo
+        if memo is not None and memo[0] == frame.utc_jd1 and memo[1] == frame.utc_jd2:
+            return memo[2]
+        site = self.track.site(frame.utc_jd1, frame.utc_jd2)
+        self._site_memo = (frame.utc_jd1, frame.utc_jd2, site)
+        return site
 
     def _identify(self, frame, xy, t_s: float):
         """``(hip (N,), mode, C_icrs_from_sensor, u_sensor (N, 3) or None)``; hip -1 for
@@ -762,7 +784,7 @@ class SensorProcessor:
         from shipstar.sky.eop import earth_orientation
 
         cam, opt = self.config.camera, self.options
-        site = self.track.site(frame.utc_jd1, frame.utc_jd2) if site is None else site
+        site = self._site(frame) if site is None else site
         weather = self.weather_table.weather(frame.utc_jd1, frame.utc_jd2) if weather is None else weather
         # the camera's passband sets the refraction wavelength (camera wavelength_um, docs/camera.md)
         weather = replace(weather, wavelength_um=cam.wavelength_um)
