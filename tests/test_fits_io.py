@@ -218,6 +218,7 @@ def test_plain_images_are_read_directly_as_astropy_reads_them(tmp_path, monkeypa
     header = fits.getheader(path)
     assert header["BITPIX"] == bitpix and header.get("BZERO") == bzero         # the case this test means
     assert _quick_read(path, "start") is not None                               # ... read directly
+    assert _quick_read(path, None) is not None                                  # (the pixels alone too)
     image, meta = read_fits(path)
     expected = _astropy_pixels(path)
     expected = expected[::-1] if roworder else expected
