@@ -1055,6 +1055,38 @@ def test_compiled_streak_start_parameters_are_the_numpy_reference_bit_for_bit():
                                       _start_parameters_python(win, col, row, sigma, smear), err_msg=str(trial))
 
 
+def test_compiled_streak_footprints_are_the_numpy_reference():
+    """The streak fits' footprints (pixel counts, peaks, saturated or off the image), compiled,
+    against the NumPy code they replaced (kept as the reference): windows of every size
+    reaching over each edge of the image, saturated pixels or none, masked pixels, flat and
+    NaN models, NaN pixel values, no star at all."""
+    from shipstar.extract._kernels import streak_footprint
+    from shipstar.extract._smeared import _FOOTPRINT_FRACTION, _footprint_python
+
+    rng = np.random.default_rng(46)
+    for trial in range(150):
+        n = int(rng.integers(0, 25))
+        wy, wx = (int(v) for v in rng.integers(1, 31, 2))
+        h, w = (int(v) for v in rng.integers(8, 80, 2))
+        col, row = rng.integers(-wx, w + wx, n), rng.integers(-wy, h + wy, n)
+        model = rng.normal(100, 5, (n, wy * wx)) + rng.uniform(0, 1e3, (n, 1)) * (rng.random((n, wy * wx)) < 0.3)
+        bg = rng.uniform(95, 105, n)
+        values = rng.normal(100, 10, (n, wy, wx))
+        valid = rng.random((n, wy, wx)) > 0.15
+        if n and trial % 5 == 0:
+            model[0] = bg[0] + 7.0                                  # a flat model: every pixel its own top
+        if n > 1 and trial % 7 == 0:
+            model[1, rng.integers(wy * wx)] = np.nan                # no footprint at all
+        if n > 2 and trial % 4 == 0:
+            values[2].flat[rng.integers(wy * wx)] = np.nan           # a NaN peak if it is in the footprint
+        saturated = (h, w) if trial % 3 == 0 else rng.random((h, w)) < 0.1
+        got = streak_footprint(model, bg, values, valid, saturated, col, row, _FOOTPRINT_FRACTION)
+        want = _footprint_python(model, bg, values, valid, saturated, col, row, _FOOTPRINT_FRACTION)
+        for g, e in zip(got, want):
+            assert g.shape == e.shape, trial
+            np.testing.assert_array_equal(g, e, err_msg=str(trial))
+
+
 def test_compiled_window_gathers_are_the_numpy_reference():
     """The fits' windows (``_streak.gather_streak_windows``, ``_fit.gather_windows``), compiled,
     against the NumPy code they replaced (kept as the reference): the same float64 values and

@@ -27,6 +27,7 @@
  *   cho_solve         the two triangular substitutions of a Cholesky solve, matrix by matrix
  *   grid_box_z        the mesh's whitened 3 x 3 sums on a regular grid (its box-noise factor)
  *   streak_start      the streak fits' start parameters (centre of light near the segment, flux)
+ *   streak_footprint  the streak fits' footprints: pixel count, peak, saturated or off the image
  *   window_peaks      windowed tracking: the line filter's maximum near each window's centre
  *   ring_levels       windowed tracking: the windows' border-ring background levels
  *   gather            rectangular pixel windows (as float64) and their validity
@@ -1914,6 +1915,111 @@ static PyObject *py_grid_box_z(PyObject *self, PyObject *args) {
  *              p0_out (N, 7) f8, N, wy, wx, reach, along_max, across_max): _streak.start_parameters's
  * arithmetic star by star (its NumPy reference: _streak._start_parameters_python), the window sums
  * in NumPy's pairwise order. */
+/* streak_footprint(model (N, P) f8, bg (N,) f8, values (N, P) f8, valid (N, P) u8, sat (H, W) u8 or
+ * one byte, col, row (N,) i8, foot_out (N, P) u8, peak_out (N,) f8, npix_out (N,) i8,
+ * flags_out (N, 2) u8, N, wy, wx, H, W, has_sat, fraction): the streak path's footprint of each
+ * fitted star (_smeared._footprint_python, the reference): its excess model - bg, the pixels
+ * where it is at least ``fraction`` of the window's largest (none when that is NaN), their
+ * count, the largest value among them that is valid or saturated (-inf: none; NaN when one is
+ * NaN), and whether one is saturated (flags_out[.., 0]) or off the image ([.., 1]); the
+ * window's pixel (i, j) is the image's (row + i - (wy - 1) // 2, col + j - (wx - 1) // 2). */
+static PyObject *py_streak_footprint(PyObject *self, PyObject *args) {
+    Bufs bs = {.n = 0};
+    Py_buffer *mb = &bs.b[0], *bgb = &bs.b[1], *vb = &bs.b[2], *kb = &bs.b[3], *sb = &bs.b[4], *cb = &bs.b[5],
+              *rb = &bs.b[6], *fb = &bs.b[7], *pkb = &bs.b[8], *nb_ = &bs.b[9], *flb = &bs.b[10];
+    Py_ssize_t N, wy, wx, H, W;
+    int has_sat;
+    double fraction;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*y*y*y*w*w*w*w*nnnnnpd", mb, bgb, vb, kb, sb, cb, rb, fb, pkb, nb_, flb,
+                          &N, &wy, &wx, &H, &W, &has_sat, &fraction))
+        return NULL;
+    bs.n = 11;
+    Py_ssize_t P = wy * wx;
+    Py_ssize_t d8 = (Py_ssize_t)sizeof(double), i8 = (Py_ssize_t)sizeof(int64_t);
+    int ok = N >= 0 && wy >= 1 && wx >= 1 && H >= 1 && W >= 1 && mb->len == N * P * d8 && vb->len == N * P * d8
+             && bgb->len == N * d8 && kb->len == N * P && cb->len == N * i8 && rb->len == N * i8
+             && fb->len == N * P && pkb->len == N * d8 && nb_->len == N * i8 && flb->len == 2 * N
+             && (!has_sat || sb->len == H * W);
+    if (!ok) {
+        bufs_release(&bs);
+        PyErr_SetString(PyExc_ValueError, "streak_footprint: bad sizes");
+        return NULL;
+    }
+    const double *model = mb->buf, *bg = bgb->buf, *values = vb->buf;
+    const uint8_t *valid = kb->buf, *sat = sb->buf;
+    const int64_t *col = cb->buf, *row = rb->buf;
+    uint8_t *foot = fb->buf, *flags = flb->buf;
+    double *peak = pkb->buf;
+    int64_t *npix = nb_->buf;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t s = 0; s < N; s++) {
+        const double *restrict m = model + s * P, *restrict v = values + s * P;
+        const uint8_t *restrict k = valid + s * P;
+        uint8_t *restrict f = foot + s * P;
+        const double b = bg[s];
+        /* the largest excess (NaN if one is); four running maxima, the same largest value */
+        double t4[4] = {-INFINITY, -INFINITY, -INFINITY, -INFINITY};
+        int nan = 0;
+        Py_ssize_t q = 0;
+        for (; q + 4 <= P; q += 4)
+            for (int u = 0; u < 4; u++) {
+                const double e = m[q + u] - b;
+                nan |= e != e;
+                t4[u] = e > t4[u] ? e : t4[u];
+            }
+        for (; q < P; q++) {
+            const double e = m[q] - b;
+            nan |= e != e;
+            t4[0] = e > t4[0] ? e : t4[0];
+        }
+        const double top = fmax(fmax(t4[0], t4[1]), fmax(t4[2], t4[3]));
+        const double level = nan ? NAN : fraction * top;
+        int64_t count = 0;
+        for (Py_ssize_t q = 0; q < P; q++) {           /* the footprint (false against NaN) */
+            const uint8_t on = (m[q] - b) >= level;
+            f[q] = on;
+            count += on;
+        }
+        /* the window's rows and columns on the image: [i0, i1) x [j0, j1) */
+        const Py_ssize_t r0 = row[s] - (wy - 1) / 2, c0 = col[s] - (wx - 1) / 2;
+        const Py_ssize_t i0 = r0 < 0 ? (-r0 < wy ? -r0 : wy) : 0, i1 = r0 + wy > H ? (H - r0 > i0 ? H - r0 : i0) : wy;
+        const Py_ssize_t j0 = c0 < 0 ? (-c0 < wx ? -c0 : wx) : 0, j1 = c0 + wx > W ? (W - c0 > j0 ? W - c0 : j0) : wx;
+        int any_off = 0, any_sat = 0, best_nan = 0;
+        double best = -INFINITY;
+        for (Py_ssize_t i = 0; i < wy; i++) {
+            const uint8_t *fr = f + i * wx;
+            const double *vr = v + i * wx;
+            const uint8_t *kr = k + i * wx;
+            if (i < i0 || i >= i1) {                   /* a row off the image: every pixel off */
+                for (Py_ssize_t j = 0; j < wx; j++) any_off |= fr[j];
+                for (Py_ssize_t j = 0; j < wx; j++) {  /* (off the image: never saturated) */
+                    const double x = (fr[j] & kr[j]) ? vr[j] : -INFINITY;
+                    best_nan |= x != x;
+                    best = x > best ? x : best;
+                }
+                continue;
+            }
+            for (Py_ssize_t j = 0; j < j0; j++) any_off |= fr[j];
+            for (Py_ssize_t j = j1; j < wx; j++) any_off |= fr[j];
+            const Py_ssize_t base = (r0 + i) * W + c0;  /* the image's pixel of (i, j): base + j */
+            for (Py_ssize_t j = 0; j < wx; j++) {
+                const uint8_t sp = (has_sat && j >= j0 && j < j1) ? sat[base + j] : 0;
+                any_sat |= fr[j] & sp;
+                const double x = (fr[j] & (kr[j] | sp)) ? vr[j] : -INFINITY;
+                best_nan |= x != x;
+                best = x > best ? x : best;
+            }
+        }
+        peak[s] = best_nan ? NAN : best;
+        npix[s] = count;
+        flags[2 * s] = (uint8_t)any_sat;
+        flags[2 * s + 1] = (uint8_t)any_off;
+    }
+    Py_END_ALLOW_THREADS
+    bufs_release(&bs);
+    Py_RETURN_NONE;
+}
+
 static PyObject *py_streak_start(PyObject *self, PyObject *args) {
     Bufs bs = {.n = 0};
     Py_buffer *vb = &bs.b[0], *kb = &bs.b[1], *bgb = &bs.b[2], *nb_ = &bs.b[3], *x0b = &bs.b[4], *y0b = &bs.b[5],
@@ -2455,6 +2561,7 @@ static PyMethodDef methods[] = {
     {"gauss_fit", py_gauss_fit, METH_VARARGS, "Gauss-Newton fits of the pixel-integrated Gaussian."},
     {"gauss_normal", py_gauss_normal, METH_VARARGS, "Normal equations of the pixel-integrated Gaussian."},
     {"block_stats", py_block_stats, METH_VARARGS, "Median, MAD and clipped RMS of block samples."},
+    {"streak_footprint", py_streak_footprint, METH_VARARGS, "The streak fits' footprints, peaks and their flags."},
     {"grid_box_sums", py_grid_box_sums, METH_VARARGS, "3 x 3 sums around a regular grid of pixels."},
     {"value_step", py_value_step, METH_VARARGS, "Smallest positive step between sorted samples."},
     {"median3", py_median3, METH_VARARGS, "3 x 3 median of a grid, edges extended."},

@@ -15,6 +15,7 @@ import numpy as np
 
 from shipstar.extract._detect import at_or_above, box_sums, candidate_pixels, local_maxima
 from shipstar.extract._fit import _spd_inverse
+from shipstar.extract._kernels import streak_footprint
 from shipstar.extract._matched import LineFilter, detect_streaks
 from shipstar.extract._point import SEGMENT_SIGMA, SHARPEST_PSF_SIGMA_PX, bright_objects, too_sharp
 from shipstar.extract._result import FLAG_EDGE, FLAG_ELONGATED, FLAG_FIT_FAILED, FLAG_SATURATED
@@ -162,20 +163,21 @@ def measure_streaks(image, mesh, smear, *, threshold_sigma, segment_sigma, sigma
         a, model = a.copy(), model.copy()
         a[failed], _, model[failed], _ = streak_normal_equations(p[failed], win.take(failed), nodes, inv_gain=inv_gain)
     cov = _spd_inverse(a) * mesh.box_noise_factor ** 2
-    excess = (model - p[:, BG, None]).reshape(win.values.shape)
-    foot = excess >= _FOOTPRINT_FRACTION * excess.max(axis=(1, 2), keepdims=True)
-    sat, inside = _window_mask(saturated, win, col, row, image.shape)
-    flags = _flags(foot, sat, inside, ok | (not fit), det)
+    # compiled: the footprints, their pixel counts and peaks (masked pixels not), and whether
+    # they reach a saturated pixel or off the image (_footprint_python's numbers)
+    foot, peak, n_foot, any_sat, any_off = streak_footprint(
+        model, p[:, BG], win.values, win.valid, image.shape if saturated is None else saturated, col, row,
+        _FOOTPRINT_FRACTION)
+    flags = _flags(any_sat, any_off, ok | (not fit), det)
     xy = p[:, :2].copy()
     if len(failed):                        # (a failed fit's: the centre of light of its footprint)
         xy[failed] = _centre_of_light(win.take(failed), foot[failed])
     flux = p[:, FLUX]
-    peak = np.where(foot & (win.valid | sat), win.values, -np.inf).max(axis=(1, 2))   # masked pixels not
     xy_cov = np.where(ok[:, None, None], cov[:, :2, :2], np.nan)
     snr = flux / np.sqrt(cov[:, FLUX, FLUX])
     keep = ~ok | (snr >= _FIT_SNR_FRACTION * threshold_sigma) if fit else np.ones(len(snr), dtype=bool)
     xy, flux, peak, flags, snr, xy_cov = xy[keep], flux[keep], peak[keep], flags[keep], snr[keep], xy_cov[keep]
-    npix = foot.sum(axis=(1, 2)) if det["npix"] is None else det["npix"]
+    npix = n_foot if det["npix"] is None else det["npix"]
     return dict(xy=xy, flux=flux, peak=peak, npix=npix[keep], flags=flags, snr=snr, xy_cov=xy_cov,
                 smear=np.array(smear, dtype=float))
 
@@ -230,11 +232,11 @@ def _centre_of_light(win, foot):
     return np.stack([win.x0 + cx, win.y0 + cy], axis=1)
 
 
-def _window_mask(mask, win, col, row, shape_hw):
-    """``mask`` (H, W) bool (None: all False) at the window pixels (N, Wy, Wx) (False off the
-    image), and which are on it."""
+def _window_mask(mask, window_hw, col, row, shape_hw):
+    """``mask`` (H, W) bool (None: all False) at the pixels (N, Wy, Wx) of the windows of
+    shape ``window_hw`` centred on ``col``, ``row`` (False off the image), and which are on it."""
     height, width = shape_hw
-    wy, wx = win.shape
+    wy, wx = window_hw
     rows = row[:, None] + np.arange(wy) - (wy - 1) // 2
     cols = col[:, None] + np.arange(wx) - (wx - 1) // 2
     inside = ((rows >= 0) & (rows < height))[:, :, None] & ((cols >= 0) & (cols < width))[:, None, :]
@@ -256,10 +258,22 @@ def _bad(shape_hw, saturated, masked):
     return bad
 
 
-def _flags(foot, sat, inside, ok, det):
-    """Per-star flag bits of the streak path (``sat``: saturated window pixels, ``inside``: on the image)."""
-    flags = np.where(np.any(foot & sat, axis=(1, 2)), FLAG_SATURATED, 0)
-    flags |= np.where(np.any(foot & ~inside, axis=(1, 2)), FLAG_EDGE, 0)
+def _footprint_python(model, bg, values, valid, saturated, col, row, fraction):
+    """The compiled :func:`~shipstar.extract._kernels.streak_footprint` in NumPy (its
+    reference): ``(foot, peak, npix, saturated, off_image)`` of each star's window."""
+    excess = (model - bg[:, None]).reshape(values.shape)
+    foot = excess >= fraction * excess.max(axis=(1, 2), keepdims=True)
+    shape = saturated if isinstance(saturated, tuple) else saturated.shape
+    sat, inside = _window_mask(None if isinstance(saturated, tuple) else saturated, values.shape[1:], col, row, shape)
+    peak = np.where(foot & (valid | sat), values, -np.inf).max(axis=(1, 2))
+    return foot, peak, foot.sum(axis=(1, 2)), np.any(foot & sat, axis=(1, 2)), np.any(foot & ~inside, axis=(1, 2))
+
+
+def _flags(any_sat, any_off, ok, det):
+    """Per-star flag bits of the streak path (``any_sat``, ``any_off``: the footprint reaches a
+    saturated pixel, off the image)."""
+    flags = np.where(any_sat, FLAG_SATURATED, 0)
+    flags |= np.where(any_off, FLAG_EDGE, 0)
     flags |= np.where(ok, 0, FLAG_FIT_FAILED)
     label = det["label"]
     shared = np.bincount(label)[label] > 1 if len(label) else np.zeros(0, dtype=bool)
