@@ -1079,9 +1079,9 @@ def test_compiled_streak_footprints_are_the_numpy_reference():
             model[1, rng.integers(wy * wx)] = np.nan                # no footprint at all
         if n > 2 and trial % 4 == 0:
             values[2].flat[rng.integers(wy * wx)] = np.nan           # a NaN peak if it is in the footprint
-        saturated = (h, w) if trial % 3 == 0 else rng.random((h, w)) < 0.1
-        got = streak_footprint(model, bg, values, valid, saturated, col, row, _FOOTPRINT_FRACTION)
-        want = _footprint_python(model, bg, values, valid, saturated, col, row, _FOOTPRINT_FRACTION)
+        saturated = None if trial % 3 == 0 else rng.random((h, w)) < 0.1
+        got = streak_footprint(model, bg, values, valid, col, row, (h, w), _FOOTPRINT_FRACTION, saturated)
+        want = _footprint_python(model, bg, values, valid, col, row, (h, w), _FOOTPRINT_FRACTION, saturated)
         for g, e in zip(got, want):
             assert g.shape == e.shape, trial
             np.testing.assert_array_equal(g, e, err_msg=str(trial))

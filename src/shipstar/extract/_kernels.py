@@ -403,30 +403,28 @@ def streak_start(win, col, row, sigma, d, reach: float, along_max: float, across
     return p0
 
 
-def streak_footprint(model, bg, values, valid, saturated, col, row, fraction: float):
+def streak_footprint(model, bg, values, valid, col, row, shape_hw, fraction: float, saturated=None):
     """The streak fits' footprints (``_smeared._footprint_python``'s numbers, the reference):
     ``(foot (N, wy, wx) bool, peak (N,), npix (N,) int64, saturated (N,) bool, off_image
     (N,) bool)`` of the fitted models ``model`` (N, wy * wx) over their backgrounds ``bg``
     (N,), the windows' ``values`` and ``valid`` (N, wy, wx) centred on ``col``, ``row`` (N,)
-    of an image whose saturated pixels are ``saturated`` ((H, W) bool; or None with the
-    image's shape ``(H, W)`` given as a tuple instead: none saturated)."""
+    of an image of shape ``shape_hw`` whose saturated pixels are ``saturated`` ((H, W) bool;
+    None: none is)."""
     values = _f8(values)
     n, wy, wx = values.shape
     valid_u8 = np.ascontiguousarray(valid, dtype=np.bool_).view(np.uint8)
     model, bg = _f8(model).reshape(n, wy * wx), _f8(bg).reshape(-1)
     col = np.ascontiguousarray(col, dtype=np.int64).reshape(-1)
     row = np.ascontiguousarray(row, dtype=np.int64).reshape(-1)
-    if isinstance(saturated, tuple):
-        (h, w), sat, has_sat = saturated, np.zeros(1, np.uint8), False
-    else:
-        sat = np.ascontiguousarray(saturated, dtype=np.bool_).view(np.uint8)
-        (h, w), has_sat = sat.shape, True
-    if valid_u8.shape != values.shape or bg.shape != (n,) or col.shape != (n,) or row.shape != (n,):
+    h, w = (int(v) for v in shape_hw)
+    sat = np.zeros(1, np.uint8) if saturated is None else np.ascontiguousarray(saturated, dtype=np.bool_).view(np.uint8)
+    if valid_u8.shape != values.shape or bg.shape != (n,) or col.shape != (n,) or row.shape != (n,) \
+            or (saturated is not None and sat.shape != (h, w)):
         raise ValueError("streak_footprint: arrays of inconsistent shapes")
     foot = np.empty(values.shape, dtype=np.bool_)
     peak, npix, flags = np.empty(n), np.empty(n, dtype=np.int64), np.empty((n, 2), dtype=np.bool_)
     _ckernels.streak_footprint(model, bg, values, valid_u8, sat, col, row, foot.view(np.uint8), peak, npix,
-                               flags.view(np.uint8), n, wy, wx, int(h), int(w), has_sat, float(fraction))
+                               flags.view(np.uint8), n, wy, wx, h, w, saturated is not None, float(fraction))
     return foot, peak, npix, flags[:, 0], flags[:, 1]
 
 

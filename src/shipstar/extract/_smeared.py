@@ -165,9 +165,8 @@ def measure_streaks(image, mesh, smear, *, threshold_sigma, segment_sigma, sigma
     cov = _spd_inverse(a) * mesh.box_noise_factor ** 2
     # compiled: the footprints, their pixel counts and peaks (masked pixels not), and whether
     # they reach a saturated pixel or off the image (_footprint_python's numbers)
-    foot, peak, n_foot, any_sat, any_off = streak_footprint(
-        model, p[:, BG], win.values, win.valid, image.shape if saturated is None else saturated, col, row,
-        _FOOTPRINT_FRACTION)
+    foot, peak, n_foot, any_sat, any_off = streak_footprint(model, p[:, BG], win.values, win.valid, col, row,
+                                                            image.shape, _FOOTPRINT_FRACTION, saturated)
     flags = _flags(any_sat, any_off, ok | (not fit), det)
     xy = p[:, :2].copy()
     if len(failed):                        # (a failed fit's: the centre of light of its footprint)
@@ -258,13 +257,12 @@ def _bad(shape_hw, saturated, masked):
     return bad
 
 
-def _footprint_python(model, bg, values, valid, saturated, col, row, fraction):
+def _footprint_python(model, bg, values, valid, col, row, shape_hw, fraction, saturated=None):
     """The compiled :func:`~shipstar.extract._kernels.streak_footprint` in NumPy (its
     reference): ``(foot, peak, npix, saturated, off_image)`` of each star's window."""
     excess = (model - bg[:, None]).reshape(values.shape)
     foot = excess >= fraction * excess.max(axis=(1, 2), keepdims=True)
-    shape = saturated if isinstance(saturated, tuple) else saturated.shape
-    sat, inside = _window_mask(None if isinstance(saturated, tuple) else saturated, values.shape[1:], col, row, shape)
+    sat, inside = _window_mask(saturated, values.shape[1:], col, row, shape_hw)
     peak = np.where(foot & (valid | sat), values, -np.inf).max(axis=(1, 2))
     return foot, peak, foot.sum(axis=(1, 2)), np.any(foot & sat, axis=(1, 2)), np.any(foot & ~inside, axis=(1, 2))
 
