@@ -658,6 +658,43 @@ def test_compiled_line_filter_is_the_numpy_reference_bit_for_bit():
                     np.testing.assert_array_equal(got, ref, err_msg=f"{smear} {across} {image.dtype} {pt is None}")
 
 
+def test_compiled_streak_peaks_are_the_numpy_reference_bit_for_bit():
+    """The line filter's peaks (threshold, 3 x 3 maxima, suppression, components and their
+    extents: ``_kernels.streak_peaks``) against the NumPy steps they replaced (kept as the
+    reference), exactly: smeared frames with satellite trails and a bright edge (components too
+    big, several peaks each: only the strongest kept), float32 and float64 filter images,
+    thresholds that leave many, one or no peaks, and a frame without candidates."""
+    from shipstar.extract._background import estimate_mesh
+    from shipstar.extract._matched import (LineFilter, _filter_mesh, _streak_peaks_python, candidate_pixels,
+                                           detect_streaks, line_filter)
+
+    image, _, _, smear = smeared_grid_frame(3.0, seed=71)
+    trails = image.astype(float)
+    for r0, slope in ((100, 0.31), (700, -0.12)):                 # two trails across the frame
+        cols = np.arange(image.shape[1])
+        rows = np.clip(np.rint(r0 + slope * cols).astype(int), 0, image.shape[0] - 1)
+        trails[rows, cols] += 400.0
+    trails[:, 1000:] += 300.0                                      # a bright edge
+    frames = [image, np.clip(trails, 0, 4095).astype(np.uint16), trails * 1e31]
+    lf = LineFilter(np.median(smear, axis=0), across_px=1)
+    n_big = n_peaks = 0
+    for frame in frames:
+        mesh = estimate_mesh(frame, quantum_adu=1.0 if frame.dtype.kind == "u" else 0.0)
+        for threshold, segment in ((5.0, 2.5), (3.0, 2.5), (40.0, 5.0), (1e9, 2.5), (5.0, 1e9)):
+            got = detect_streaks(frame, mesh, lf, threshold, segment, 1.1)
+            s_image = line_filter(frame, mesh.background_adu, lf)
+            mesh_s = _filter_mesh(s_image, mesh)
+            idx = candidate_pixels(s_image, mesh_s, segment)
+            want = _streak_peaks_python(s_image, idx, mesh_s, lf, threshold, 1.1)
+            assert sorted(got) == sorted(want)
+            for key in want:
+                assert got[key].dtype == want[key].dtype, key
+                np.testing.assert_array_equal(got[key], want[key], err_msg=f"{key} {frame.dtype} {threshold}")
+            n_big += int(np.count_nonzero(want["too_big"]))
+            n_peaks += len(want["col"])
+    assert n_big >= 4 and n_peaks > 1000          # the cases the test is for were met
+
+
 def test_work_arrays_kept_between_frames_do_not_leak_into_results():
     """The line filter and the fits reuse per-thread work arrays: a frame of another size or
     with other stars in between must not change a frame's result."""

@@ -23,6 +23,7 @@
  *   region_shape      the trail test's region around a detection: its length and width
  *   label_runs        8- (or 4-) connected components of sorted candidate pixels (union-find on runs)
  *   suppress          greedy suppression of peaks within a stronger peak's streak footprint
+ *   streak_peaks      the line filter's peaks from its candidates: suppression, components, extents
  *   erf_array         erf of an array (libm)
  *   cho_solve         the two triangular substitutions of a Cholesky solve, matrix by matrix
  *   grid_box_z        the mesh's whitened 3 x 3 sums on a regular grid (its box-noise factor)
@@ -1630,19 +1631,13 @@ static int64_t uf_find(int64_t *parent, int64_t i) {
     return i;
 }
 
-/* labels (K,) of sorted flat indices idx (K,) of an image `width` wide; returns the count. */
-static PyObject *py_label_runs(PyObject *self, PyObject *args) {
-    Py_buffer idx_b, lab_b;
-    Py_ssize_t K, width;
-    int diagonal = 1;                               /* 8-connected; 0: 4-connected */
-    if (!PyArg_ParseTuple(args, "y*w*nn|p", &idx_b, &lab_b, &K, &width, &diagonal)) return NULL;
-    const int64_t *idx = idx_b.buf;
-    int64_t *labels = lab_b.buf;
+/* labels (K,) of sorted flat indices idx (K,) of an image `width` wide (work: 4 K int64); returns
+ * the count.  Runs (maximal horizontal segments) joined by union-find, numbered in the order of
+ * each component's first run. */
+static int64_t label_runs_core(const int64_t *idx, int64_t *labels, Py_ssize_t K, Py_ssize_t width, int diagonal,
+                               int64_t *work) {
     int64_t n_labels = 0;
-    int64_t *run_start = malloc(sizeof(int64_t) * 4 * (size_t)(K > 0 ? K : 1));
-    if (!run_start) { PyBuffer_Release(&idx_b); PyBuffer_Release(&lab_b); return PyErr_NoMemory(); }
-    Py_BEGIN_ALLOW_THREADS
-    int64_t *run_end = run_start + K, *parent = run_end + K, *label_of = parent + K;
+    int64_t *run_start = work, *run_end = run_start + K, *parent = run_end + K, *label_of = parent + K;
     int64_t n_runs = 0;
     for (Py_ssize_t i = 0; i < K; i++) {            /* runs: maximal horizontal segments */
         if (i == 0 || idx[i] != idx[i - 1] + 1 || idx[i] / width != idx[i - 1] / width) {
@@ -1675,8 +1670,21 @@ static PyObject *py_label_runs(PyObject *self, PyObject *args) {
         else label_of[r] = label_of[root];
     }
     for (Py_ssize_t i = 0; i < K; i++) labels[i] = label_of[labels[i]];
+    return n_labels;
+}
+
+static PyObject *py_label_runs(PyObject *self, PyObject *args) {
+    Py_buffer idx_b, lab_b;
+    Py_ssize_t K, width;
+    int diagonal = 1;                               /* 8-connected; 0: 4-connected */
+    if (!PyArg_ParseTuple(args, "y*w*nn|p", &idx_b, &lab_b, &K, &width, &diagonal)) return NULL;
+    int64_t *work = malloc(sizeof(int64_t) * 4 * (size_t)(K > 0 ? K : 1));
+    if (!work) { PyBuffer_Release(&idx_b); PyBuffer_Release(&lab_b); return PyErr_NoMemory(); }
+    int64_t n_labels;
+    Py_BEGIN_ALLOW_THREADS
+    n_labels = label_runs_core(idx_b.buf, lab_b.buf, K, width, diagonal, work);
     Py_END_ALLOW_THREADS
-    free(run_start);
+    free(work);
     PyBuffer_Release(&idx_b);
     PyBuffer_Release(&lab_b);
     return PyLong_FromLongLong((long long)n_labels);
@@ -1803,16 +1811,8 @@ static PyObject *py_region_shape(PyObject *self, PyObject *args) {
 /* ------------------------------------------------------------------ suppress */
 
 /* dropped (M,) of peaks xy (M, 2) visited in `order` (strongest first). */
-static PyObject *py_suppress(PyObject *self, PyObject *args) {
-    Py_buffer xy_b, order_b, drop_b;
-    Py_ssize_t M;
-    double ux, uy, along_px, across_px;
-    if (!PyArg_ParseTuple(args, "y*y*w*ndddd", &xy_b, &order_b, &drop_b, &M, &ux, &uy, &along_px, &across_px))
-        return NULL;
-    const double *xy = xy_b.buf;
-    const int64_t *order = order_b.buf;
-    uint8_t *dropped = drop_b.buf;
-    Py_BEGIN_ALLOW_THREADS
+static void suppress_core(const double *xy, const int64_t *order, uint8_t *dropped, Py_ssize_t M, double ux,
+                          double uy, double along_px, double across_px) {
     for (Py_ssize_t r = 0; r < M; r++) {
         int64_t i = order[r];
         if (dropped[i]) continue;
@@ -1822,11 +1822,188 @@ static PyObject *py_suppress(PyObject *self, PyObject *args) {
             if (fabs(dx * ux + dy * uy) <= along_px && fabs(dx * uy - dy * ux) <= across_px) dropped[j] = 1;
         }
     }
+}
+
+static PyObject *py_suppress(PyObject *self, PyObject *args) {
+    Py_buffer xy_b, order_b, drop_b;
+    Py_ssize_t M;
+    double ux, uy, along_px, across_px;
+    if (!PyArg_ParseTuple(args, "y*y*w*ndddd", &xy_b, &order_b, &drop_b, &M, &ux, &uy, &along_px, &across_px))
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    suppress_core(xy_b.buf, order_b.buf, drop_b.buf, M, ux, uy, along_px, across_px);
     Py_END_ALLOW_THREADS
     PyBuffer_Release(&xy_b);
     PyBuffer_Release(&order_b);
     PyBuffer_Release(&drop_b);
     Py_RETURN_NONE;
+}
+
+/* ------------------------------------------------------------------ streak_peaks */
+
+/* Stable merge sort of the indices ord (n,) by key descending (ties: the smaller index first,
+ * as NumPy's stable argsort of -key); tmp (n,) work. */
+static void sort_desc_stable(int64_t *ord, int64_t *tmp, Py_ssize_t n, const double *key) {
+    for (Py_ssize_t width = 1; width < n; width *= 2) {
+        for (Py_ssize_t lo = 0; lo < n; lo += 2 * width) {
+            Py_ssize_t mid = lo + width < n ? lo + width : n, hi = lo + 2 * width < n ? lo + 2 * width : n;
+            Py_ssize_t i = lo, j = mid, k = lo;
+            while (i < mid && j < hi) tmp[k++] = key[ord[j]] > key[ord[i]] ? ord[j++] : ord[i++];
+            while (i < mid) tmp[k++] = ord[i++];
+            while (j < hi) tmp[k++] = ord[j++];
+        }
+        memcpy(ord, tmp, sizeof(int64_t) * (size_t)n);
+    }
+}
+
+/* streak_peaks(s (H, W) f4 or f8, idx (K,) i8 sorted, bg, noise (ny, nx) f8, col_out, row_out (K,) i8,
+ *              snr_out (K,) f8, label_out, npix_out (K,) i8, too_big_out (K,) u8, K, H, W, ny, nx, block,
+ *              level, threshold, ux, uy, along_px, across_px, max_along_px, max_across_px, is_double)
+ *   -> the number of peaks written: _matched._streak_peaks_python's steps on the line filter's
+ * candidate pixels, the same arithmetic in the same order.  The candidates at or above `level`
+ * whose excess over the filter's bilinear background is at least `threshold` times its noise
+ * and that are the maximum of their 3 x 3 neighbourhood, strongest first; those within a
+ * stronger kept one's footprint (along_px x across_px about the unit smear (ux, uy)) dropped;
+ * each one's component of the candidates (8-connected), that component's pixel count and
+ * whether its RMS extent along or across the smear exceeds max_along_px / max_across_px
+ * (too big: only a component's strongest peak is then kept). */
+static Py_ssize_t streak_peaks_core(const void *s_img, int is_double, const int64_t *idx, Py_ssize_t K,
+                                    Py_ssize_t H, Py_ssize_t W, const double *bg, const double *noise, Py_ssize_t ny,
+                                    Py_ssize_t nx, double block, double level, double threshold, double ux,
+                                    double uy, double along_px, double across_px, double max_along_px,
+                                    double max_across_px, int64_t *col_out, int64_t *row_out, double *snr_out,
+                                    int64_t *label_out, int64_t *npix_out, uint8_t *too_big_out, int64_t *work) {
+    /* work: 13 K int64 slots (doubles share the slots' size) and K bytes */
+    int64_t *pos = work;                      /* (M,) position in idx of each peak */
+    double *snr = (double *)(pos + K);        /* (M,) */
+    double *xy = (double *)(pos + 2 * K);     /* (M, 2) */
+    int64_t *ord = pos + 4 * K, *tmp = pos + 5 * K;
+    int64_t *labels = pos + 6 * K;            /* (K,) */
+    int64_t *lwork = pos + 7 * K;             /* (6 K,): the runs' work, then 6 values a component */
+    uint8_t *dropped = (uint8_t *)(pos + 13 * K);
+    const float *sf = s_img;
+    const double *sd = s_img;
+    Py_ssize_t M = 0;
+    for (Py_ssize_t i = 0; i < K; i++) {
+        int64_t p = idx[i];
+        double v = is_double ? sd[p] : (double)sf[p];
+        if (!(v >= level)) continue;
+        Py_ssize_t r = p / W, c = p - r * W;
+        Py_ssize_t x0, x1, y0, y1;
+        double fx, fy, out[2];
+        mesh_weights((double)c, block, nx, &x0, &x1, &fx);
+        mesh_weights((double)r, block, ny, &y0, &y1, &fy);
+        const double *grids[2] = {bg, noise};
+        for (int q = 0; q < 2; q++) {
+            const double *g = grids[q];
+            double top = g[y0 * nx + x0] * (1 - fx) + g[y0 * nx + x1] * fx;
+            double bottom = g[y1 * nx + x0] * (1 - fx) + g[y1 * nx + x1] * fx;
+            out[q] = top * (1 - fy) + bottom * fy;
+        }
+        double z = (v - out[0]) / out[1];
+        if (!(z >= threshold)) continue;
+        int ok = 1;                           /* the 3 x 3 maximum (ties: the smallest flat index) */
+        for (int dr = -1; dr <= 1 && ok; dr++) {
+            if (r + dr < 0 || r + dr >= H) continue;
+            for (int dc = -1; dc <= 1; dc++) {
+                if ((dr == 0 && dc == 0) || c + dc < 0 || c + dc >= W) continue;
+                Py_ssize_t q = p + dr * W + dc;
+                double u = is_double ? sd[q] : (double)sf[q];
+                if (dr * W + dc < 0 ? !(v > u) : !(v >= u)) { ok = 0; break; }
+            }
+        }
+        if (!ok) continue;
+        pos[M] = i;
+        snr[M] = z;
+        xy[2 * M] = (double)c;
+        xy[2 * M + 1] = (double)r;
+        M++;
+    }
+    for (Py_ssize_t m = 0; m < M; m++) ord[m] = m;
+    sort_desc_stable(ord, tmp, M, snr);
+    memset(dropped, 0, (size_t)(M > 0 ? M : 1));
+    if (M >= 2) suppress_core(xy, ord, dropped, M, ux, uy, along_px, across_px);
+    Py_ssize_t n = 0;                         /* the kept peaks, strongest first */
+    for (Py_ssize_t m = 0; m < M; m++)
+        if (!dropped[ord[m]]) ord[n++] = ord[m];
+    if (n == 0) return 0;
+    int64_t n_labels = label_runs_core(idx, labels, K, W, 1, lwork);
+    /* per component: pixel count, then (for those with a peak) the sums of the extent */
+    int64_t *count = lwork, *slot = lwork + n_labels;              /* (n_labels,) each: the runs are done */
+    double *sum_a = (double *)(lwork + 2 * n_labels), *sum_c = sum_a + n_labels;
+    memset(count, 0, sizeof(int64_t) * (size_t)n_labels);
+    for (Py_ssize_t i = 0; i < K; i++) count[labels[i]]++;
+    for (int64_t l = 0; l < n_labels; l++) slot[l] = -1;
+    uint8_t *first = (uint8_t *)tmp;          /* (n,): the component's strongest peak */
+    for (Py_ssize_t m = 0; m < n; m++) {
+        int64_t l = labels[pos[ord[m]]];
+        first[m] = slot[l] < 0;
+        slot[l] = 1;
+    }
+    for (int64_t l = 0; l < n_labels; l++) sum_a[l] = sum_c[l] = 0.0;
+    for (Py_ssize_t i = 0; i < K; i++) {
+        int64_t l = labels[i];
+        if (slot[l] < 0) continue;
+        double row = (double)(idx[i] / W), col = (double)(idx[i] - (idx[i] / W) * W);
+        sum_a[l] += col * ux + row * uy;
+        sum_c[l] += col * uy - row * ux;
+    }
+    for (int64_t l = 0; l < n_labels; l++)
+        if (slot[l] >= 0) {
+            sum_a[l] /= (double)count[l];     /* the means */
+            sum_c[l] /= (double)count[l];
+        }
+    double *var_a = (double *)(lwork + 4 * n_labels), *var_c = var_a + n_labels;
+    for (int64_t l = 0; l < n_labels; l++) var_a[l] = var_c[l] = 0.0;
+    for (Py_ssize_t i = 0; i < K; i++) {
+        int64_t l = labels[i];
+        if (slot[l] < 0) continue;
+        double row = (double)(idx[i] / W), col = (double)(idx[i] - (idx[i] / W) * W);
+        double da = (col * ux + row * uy) - sum_a[l], dc = (col * uy - row * ux) - sum_c[l];
+        var_a[l] += da * da;
+        var_c[l] += dc * dc;
+    }
+    Py_ssize_t out = 0;
+    for (Py_ssize_t m = 0; m < n; m++) {
+        int64_t i = pos[ord[m]], l = labels[i];
+        double ea = sqrt(var_a[l] / (double)count[l]), ec = sqrt(var_c[l] / (double)count[l]);
+        int big = ea > max_along_px || ec > max_across_px;
+        if (big && !first[m]) continue;
+        col_out[out] = (int64_t)xy[2 * ord[m]];
+        row_out[out] = (int64_t)xy[2 * ord[m] + 1];
+        snr_out[out] = snr[ord[m]];
+        label_out[out] = l;
+        npix_out[out] = count[l];
+        too_big_out[out] = (uint8_t)big;
+        out++;
+    }
+    return out;
+}
+
+static PyObject *py_streak_peaks(PyObject *self, PyObject *args) {
+    Py_buffer sb, xb, bb, nb_, cb, rb, zb, lb, pb, tb;
+    Py_ssize_t K, H, W, ny, nx;
+    double block, level, threshold, ux, uy, along_px, across_px, max_along_px, max_across_px;
+    int is_double;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*w*w*w*w*w*w*nnnnndddddddddp", &sb, &xb, &bb, &nb_, &cb, &rb, &zb, &lb, &pb,
+                          &tb, &K, &H, &W, &ny, &nx, &block, &level, &threshold, &ux, &uy, &along_px, &across_px,
+                          &max_along_px, &max_across_px, &is_double))
+        return NULL;
+    Py_ssize_t n = -1;
+    int64_t *work = malloc(sizeof(int64_t) * (13 * (size_t)K + 1) + (size_t)K + 1);
+    if (work) {
+        Py_BEGIN_ALLOW_THREADS
+        n = streak_peaks_core(sb.buf, is_double, xb.buf, K, H, W, bb.buf, nb_.buf, ny, nx, block, level, threshold,
+                              ux, uy, along_px, across_px, max_along_px, max_across_px, cb.buf, rb.buf, zb.buf,
+                              lb.buf, pb.buf, tb.buf, work);
+        Py_END_ALLOW_THREADS
+        free(work);
+    }
+    PyBuffer_Release(&sb); PyBuffer_Release(&xb); PyBuffer_Release(&bb); PyBuffer_Release(&nb_);
+    PyBuffer_Release(&cb); PyBuffer_Release(&rb); PyBuffer_Release(&zb); PyBuffer_Release(&lb);
+    PyBuffer_Release(&pb); PyBuffer_Release(&tb);
+    if (n < 0) return PyErr_NoMemory();
+    return PyLong_FromSsize_t(n);
 }
 
 /* ------------------------------------------------------------------ erf_array */
@@ -2576,6 +2753,7 @@ static PyMethodDef methods[] = {
     {"region_shape", py_region_shape, METH_VARARGS, "The trail test's region: its extent along and across."},
     {"label_runs", py_label_runs, METH_VARARGS, "8-connected components of sorted candidate pixels."},
     {"suppress", py_suppress, METH_VARARGS, "Greedy suppression of peaks in a stronger one's footprint."},
+    {"streak_peaks", py_streak_peaks, METH_VARARGS, "The line filter's peaks, their components and extents."},
     {"erf_array", py_erf_array, METH_VARARGS, "erf of a float64 array."},
     {"cho_solve", py_cho_solve, METH_VARARGS, "Cholesky substitutions of stacked systems, in place."},
     {"grid_box_z", py_grid_box_z, METH_VARARGS, "Whitened 3 x 3 sums on a regular grid of the mesh."},

@@ -22,6 +22,8 @@ Each wrapper hands its C kernel C-contiguous arrays of the dtypes it reads and w
   the order of their first pixel (as ``scipy.sparse.csgraph.connected_components`` on
   the runs' graph numbered them);
 - :func:`suppress`: greedy suppression of the peaks within a stronger peak's footprint;
+- :func:`streak_peaks`: the line filter's peaks from its candidates (the threshold, the 3 x 3
+  maxima, the suppression, their components and extents: ``_matched._streak_peaks_python``);
 - :func:`erf`: the error function of an array (libm);
 - :func:`persistent_pairs`, :func:`persistent_merge`: the persistent-pixel test's look-up
   and its table's update (``_artifacts.PersistentPixels``).
@@ -37,7 +39,7 @@ from shipstar.extract._scratch import scratch
 __all__ = ["streak_equations", "streak_fit", "gauss_fit", "gauss_normal", "block_stats", "grid_box_sums",
            "value_step", "median3", "mesh_at",
            "candidates", "local_max", "neighbours", "tap_sum", "line_filter", "box3", "label_runs", "region_shape",
-           "suppress", "erf", "persistent_pairs", "persistent_merge"]
+           "suppress", "streak_peaks", "erf", "persistent_pairs", "persistent_merge"]
 
 _TABLE_STEPS = 1024
 
@@ -348,6 +350,37 @@ def suppress(xy, order, u, along_px: float, across_px: float) -> np.ndarray:
     dropped = np.zeros(len(order), dtype=np.uint8)
     _ckernels.suppress(xy, order, dropped, len(order), float(u[0]), float(u[1]), float(along_px), float(across_px))
     return dropped.astype(bool)
+
+
+def streak_peaks(s_image, idx, bg, noise, block_px: int, level: float, threshold: float, u, along_px: float,
+                 across_px: float, max_extent_px):
+    """The line filter's peaks from its candidate pixels, as ``_matched._streak_peaks_python``
+    finds them (the same arithmetic in the same order): ``(col, row, snr, label, npix, too_big)``
+    (M,) of the candidates ``idx`` (K,) sorted flat indices of ``s_image`` (H, W) float32 or
+    float64 at or above ``level`` whose excess over the filter's bilinear background ``bg``
+    (``noise``, (n_by, n_bx) blocks of ``block_px``) is at least ``threshold`` noises and that
+    are the maximum of their 3 x 3 neighbourhood, strongest first; those within ``along_px``
+    along the unit smear ``u`` (2,) and ``across_px`` across it of a stronger kept one
+    dropped; each one's 8-connected component of the candidates, its pixel count, and
+    whether its RMS extent along or across the smear exceeds ``max_extent_px`` (2,) (then
+    only the component's strongest peak is kept)."""
+    s_image = np.asarray(s_image)
+    if s_image.dtype not in (np.float32, np.float64) or s_image.ndim != 2 or not s_image.flags.c_contiguous:
+        raise ValueError("streak_peaks: the filter image must be a C-contiguous 2-D float32 or float64 array")
+    idx = np.ascontiguousarray(idx, dtype=np.int64).reshape(-1)
+    bg, noise = _f8(bg), _f8(noise)
+    if bg.shape != noise.shape or bg.ndim != 2:
+        raise ValueError("streak_peaks: mesh grids of unequal shapes")
+    if idx.size and (idx[0] < 0 or idx[-1] >= s_image.size or (idx.size > 1 and not np.all(idx[1:] > idx[:-1]))):
+        raise ValueError("streak_peaks needs sorted, distinct flat indices on the image")
+    k = idx.size
+    col, row, label, npix = (np.empty(k, dtype=np.int64) for _ in range(4))
+    snr, too_big = np.empty(k), np.empty(k, dtype=np.uint8)
+    n = _ckernels.streak_peaks(s_image, idx, bg, noise, col, row, snr, label, npix, too_big, k, *s_image.shape,
+                               *bg.shape, float(block_px), float(level), float(threshold), float(u[0]), float(u[1]),
+                               float(along_px), float(across_px), float(max_extent_px[0]), float(max_extent_px[1]),
+                               s_image.dtype == np.float64)
+    return col[:n], row[:n], snr[:n], label[:n], npix[:n], too_big[:n].astype(bool)
 
 
 def erf(x) -> np.ndarray:

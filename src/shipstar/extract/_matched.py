@@ -30,7 +30,7 @@ import numpy as np
 from shipstar.extract._background import Mesh, estimate_mesh, median
 from shipstar.extract._detect import candidate_pixels, components, local_maxima, sum_dtype
 from shipstar.extract._kernels import line_filter as kernel_line_filter
-from shipstar.extract._kernels import suppress, tap_sum
+from shipstar.extract._kernels import streak_peaks, suppress, tap_sum
 from shipstar.extract._scratch import scratch
 
 __all__ = ["LineFilter", "line_filter", "detect_streaks", "EXTENT_FACTOR"]
@@ -216,11 +216,29 @@ def detect_streaks(image, mesh: Mesh, lf: LineFilter, threshold_sigma: float, se
     ~1 px), ``snr`` (M,) S excess over its noise, ``label`` (M,) component of S's
     candidate pixels each peak is in, ``npix`` (M,) pixels in that component, and
     ``too_big`` (M,) bool: the component is longer or wider than one streak (a trail,
-    an edge; only its strongest peak is kept).
+    an edge; only its strongest peak is kept).  The peaks are found among S's candidate
+    pixels in one compiled call (:func:`shipstar.extract._kernels.streak_peaks`, the steps
+    of :func:`_streak_peaks_python` bit for bit; ~0.2 ms of NumPy calls a streak frame).
     """
     s_image = line_filter(image, mesh.background_adu, lf, patch)
     mesh_s = _filter_mesh(s_image, mesh)
     idx = candidate_pixels(s_image, mesh_s, segment_sigma)
+    col, row, snr, label, npix, too_big = streak_peaks(
+        s_image, idx, mesh_s.bg, mesh_s.noise, mesh_s.block_px, np.min(mesh_s.bg + threshold_sigma * mesh_s.noise),
+        threshold_sigma, lf.smear_px / max(lf.length_px, 1e-12), lf.length_px + 1.5, 2.5 + psf_sigma_px,
+        EXTENT_FACTOR * _single_extent_px(lf, psf_sigma_px))
+    return dict(col=col, row=row, snr=snr, label=label, npix=npix, too_big=too_big)
+
+
+def _single_extent_px(lf: LineFilter, psf_sigma_px: float) -> np.ndarray:
+    """(2,) RMS extent along and across the smear of a single streak's pixels, at most, px."""
+    return np.array([lf.length_px + 4.0 * psf_sigma_px + 2.0, 2.0 * psf_sigma_px + 2.0]) / math.sqrt(3.0)
+
+
+def _streak_peaks_python(s_image, idx, mesh_s: Mesh, lf: LineFilter, threshold_sigma: float, psf_sigma_px: float):
+    """The peaks of :func:`detect_streaks` from the line filter's image ``s_image``, its mesh
+    ``mesh_s`` and its candidate pixels ``idx``, in NumPy: the compiled kernel's reference
+    (:func:`shipstar.extract._kernels.streak_peaks`)."""
     flat = s_image.reshape(-1)
     # the peaks that count are local maxima among the pixels >= threshold_sigma (bilinear mesh,
     # whose values are never below the lowest block's: a cheap first cut)
@@ -246,8 +264,7 @@ def detect_streaks(image, mesh: Mesh, lf: LineFilter, threshold_sigma: float, se
     sel = compact[labels] >= 0
     extent = _component_extent(idx[sel], compact[labels[sel]], len(with_peak), s_image.shape[1], lf)[compact[label]]
     # a component longer or wider than one streak is a trail or an edge: its strongest peak only
-    single = np.array([lf.length_px + 4.0 * psf_sigma_px + 2.0, 2.0 * psf_sigma_px + 2.0]) / math.sqrt(3.0)
-    too_big = np.any(extent > EXTENT_FACTOR * single, axis=1)
+    too_big = np.any(extent > EXTENT_FACTOR * _single_extent_px(lf, psf_sigma_px), axis=1)
     keep = ~too_big
     keep[first] = True
     return dict(col=col[keep], row=row[keep], snr=snr[keep], label=label[keep], npix=npix[label][keep],
