@@ -1638,20 +1638,28 @@ static int64_t label_runs_core(const int64_t *idx, int64_t *labels, Py_ssize_t K
                                int64_t *work) {
     int64_t n_labels = 0;
     int64_t *run_start = work, *run_end = run_start + K, *parent = run_end + K, *label_of = parent + K;
-    int64_t n_runs = 0;
+    int64_t *run_row = label_of;                    /* (each run's row until the labels are made) */
+    int64_t n_runs = 0, row = -1, row_end = INT64_MIN;
     for (Py_ssize_t i = 0; i < K; i++) {            /* runs: maximal horizontal segments */
-        if (i == 0 || idx[i] != idx[i - 1] + 1 || idx[i] / width != idx[i - 1] / width) {
-            run_start[n_runs] = idx[i];
+        int64_t p = idx[i];
+        int new_row = p >= row_end;                 /* (a division only where a row starts: ~40 ns each) */
+        if (new_row) {
+            row = p / width;
+            row_end = (row + 1) * width;
+        }
+        if (i == 0 || new_row || p != idx[i - 1] + 1) {
+            run_start[n_runs] = p;
+            run_row[n_runs] = row;
             parent[n_runs] = n_runs;
             n_runs++;
         }
-        run_end[n_runs - 1] = idx[i];
+        run_end[n_runs - 1] = p;
         labels[i] = n_runs - 1;                     /* run number for now */
     }
     int64_t lo = 0;                                 /* first run of the next row that may touch */
     for (int64_t r = 0; r < n_runs; r++) {
-        int64_t row = run_start[r] / width, c0 = run_start[r] - row * width, c1 = run_end[r] - row * width;
-        int64_t below = (row + 1) * width;
+        int64_t rrow = run_row[r], c0 = run_start[r] - rrow * width, c1 = run_end[r] - rrow * width;
+        int64_t below = (rrow + 1) * width;
         int64_t reach = diagonal ? 1 : 0;
         int64_t first = below + (c0 - reach > 0 ? c0 - reach : 0);
         int64_t last = below + (c1 + reach < width - 1 ? c1 + reach : width - 1);
@@ -2049,33 +2057,46 @@ static PyObject *py_grid_box_z(PyObject *self, PyObject *args) {
     if (ok) {
         const double *total = tb.buf, *bg = bb.buf, *noise = nb_.buf;
         double *out = ob.buf;
-        Py_BEGIN_ALLOW_THREADS
-        for (Py_ssize_t i = 0; i < nr; i++) {
-            Py_ssize_t y0, y1;
-            double wy0, wy1;
-            grid_weights((double)(1 + step * i), block, ny, &y0, &y1, &wy0, &wy1);
-            for (Py_ssize_t j = 0; j < nc; j++) {
-                Py_ssize_t x0, x1;
-                double wx0, wx1;
-                grid_weights((double)(1 + step * j), block, nx, &x0, &x1, &wx0, &wx1);
-                const double *grids[2] = {bg, noise};
-                double v[2];
-                for (int g = 0; g < 2; g++) {
-                    const double *q = grids[g];
-                    double c0, c1;
-                    if (ny > 1) {
-                        c0 = wy0 * q[y0 * nx + x0] + wy1 * q[y1 * nx + x0];
-                        c1 = wy0 * q[y0 * nx + x1] + wy1 * q[y1 * nx + x1];
-                    } else {
-                        c0 = (wy0 + wy1) * q[x0];
-                        c1 = (wy0 + wy1) * q[x1];
+        /* the columns' weights once (the same for every row: 4096 -> 64 weight computations) */
+        Py_ssize_t *xi = malloc(sizeof(Py_ssize_t) * 2 * (size_t)(nc > 0 ? nc : 1));
+        double *xw = malloc(sizeof(double) * 2 * (size_t)(nc > 0 ? nc : 1));
+        ok = xi && xw;
+        if (ok) {
+            Py_BEGIN_ALLOW_THREADS
+            for (Py_ssize_t j = 0; j < nc; j++)
+                grid_weights((double)(1 + step * j), block, nx, &xi[2 * j], &xi[2 * j + 1], &xw[2 * j], &xw[2 * j + 1]);
+            for (Py_ssize_t i = 0; i < nr; i++) {
+                Py_ssize_t y0, y1;
+                double wy0, wy1;
+                grid_weights((double)(1 + step * i), block, ny, &y0, &y1, &wy0, &wy1);
+                for (Py_ssize_t j = 0; j < nc; j++) {
+                    const Py_ssize_t x0 = xi[2 * j], x1 = xi[2 * j + 1];
+                    const double wx0 = xw[2 * j], wx1 = xw[2 * j + 1];
+                    const double *grids[2] = {bg, noise};
+                    double v[2];
+                    for (int g = 0; g < 2; g++) {
+                        const double *q = grids[g];
+                        double c0, c1;
+                        if (ny > 1) {
+                            c0 = wy0 * q[y0 * nx + x0] + wy1 * q[y1 * nx + x0];
+                            c1 = wy0 * q[y0 * nx + x1] + wy1 * q[y1 * nx + x1];
+                        } else {
+                            c0 = (wy0 + wy1) * q[x0];
+                            c1 = (wy0 + wy1) * q[x1];
+                        }
+                        v[g] = nx > 1 ? wx0 * c0 + wx1 * c1 : (wx0 + wx1) * c0;
                     }
-                    v[g] = nx > 1 ? wx0 * c0 + wx1 * c1 : (wx0 + wx1) * c0;
+                    out[i * nc + j] = (total[i * nc + j] - 9.0 * v[0]) / (3.0 * v[1]);
                 }
-                out[i * nc + j] = (total[i * nc + j] - 9.0 * v[0]) / (3.0 * v[1]);
             }
+            Py_END_ALLOW_THREADS
         }
-        Py_END_ALLOW_THREADS
+        free(xi);
+        free(xw);
+        if (!ok) {
+            PyBuffer_Release(&tb); PyBuffer_Release(&bb); PyBuffer_Release(&nb_); PyBuffer_Release(&ob);
+            return PyErr_NoMemory();
+        }
     }
     PyBuffer_Release(&tb); PyBuffer_Release(&bb); PyBuffer_Release(&nb_); PyBuffer_Release(&ob);
     if (!ok) {
