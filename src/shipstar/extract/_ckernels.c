@@ -24,6 +24,7 @@
  *   label_runs        8- (or 4-) connected components of sorted candidate pixels (union-find on runs)
  *   suppress          greedy suppression of peaks within a stronger peak's streak footprint
  *   streak_peaks      the line filter's peaks from its candidates: suppression, components, extents
+ *   point_objects     point sources from the candidates: 3 x 3 peaks, the box test, one a component
  *   erf_array         erf of an array (libm)
  *   cho_solve         the two triangular substitutions of a Cholesky solve, matrix by matrix
  *   grid_box_z        the mesh's whitened 3 x 3 sums on a regular grid (its box-noise factor)
@@ -2014,6 +2015,129 @@ static PyObject *py_streak_peaks(PyObject *self, PyObject *args) {
     return PyLong_FromSsize_t(n);
 }
 
+/* ------------------------------------------------------------------ point_objects */
+
+/* Bilinear bg and noise at pixel (x, y): py_mesh_at's arithmetic. */
+static void mesh_pair_at(const double *bg, const double *noise, Py_ssize_t ny, Py_ssize_t nx, double block, double x,
+                         double y, double *b_out, double *n_out) {
+    Py_ssize_t x0, x1, y0, y1;
+    double fx, fy;
+    mesh_weights(x, block, nx, &x0, &x1, &fx);
+    mesh_weights(y, block, ny, &y0, &y1, &fy);
+    const double *grids[2] = {bg, noise};
+    double out[2];
+    for (int q = 0; q < 2; q++) {
+        const double *g = grids[q];
+        double top = g[y0 * nx + x0] * (1 - fx) + g[y0 * nx + x1] * fx;
+        double bottom = g[y1 * nx + x0] * (1 - fx) + g[y1 * nx + x1] * fx;
+        out[q] = top * (1 - fy) + bottom * fy;
+    }
+    *b_out = out[0];
+    *n_out = out[1];
+}
+
+/* point_objects(image, idx (K,) i8 sorted candidates, bg, noise (ny, nx) f8, peaks_out, label_out,
+ *               labels_out (K,) i8, K, H, W, ny, nx, block, level (threshold x box-noise factor), ratio, type)
+ *   -> the number of objects: _point._detect_objects_python's steps after the candidates, the same
+ * arithmetic in the same order.  The candidates that are the maximum of their 3 x 3
+ * neighbourhood, whose 3 x 3 box excess over the bilinear background is at least
+ * level sqrt(box pixels) noise and whose 8 neighbours hold at least `ratio` (SINGLE_PIXEL_RATIO) of
+ * the peak pixel's excess; of each 8-connected component of the candidates (labels_out) the
+ * one with the largest box excess (ties: the first), in flat-index order. */
+#define POINT_OBJECTS(SUF, T)                                                                           \
+    static Py_ssize_t point_objects_##SUF(const T *img, const int64_t *idx, Py_ssize_t K, Py_ssize_t H, \
+                                          Py_ssize_t W, const double *bg, const double *noise,          \
+                                          Py_ssize_t ny, Py_ssize_t nx, double block, double level,     \
+                                          double ratio, int64_t *peaks_out, int64_t *label_out, int64_t *labels,      \
+                                          int64_t *work) {                                              \
+        uint8_t *is_max = (uint8_t *)(work + 6 * K);                                                    \
+        int64_t *pos = work + 4 * K;          /* (M,) the stars' positions in idx */                    \
+        double *excess = (double *)(work + 5 * K);                                                      \
+        local_max_##SUF(img, idx, is_max, K, H, W);                                                     \
+        Py_ssize_t M = 0;                                                                               \
+        for (Py_ssize_t i = 0; i < K; i++) {                                                            \
+            if (!is_max[i]) continue;                                                                   \
+            const int64_t p = idx[i];                                                                   \
+            double values[8], e[8];                                                                     \
+            uint8_t inside[8];                                                                          \
+            neighbours_##SUF(img, &p, values, inside, 1, H, W);                                         \
+            int n_in = 0;                                                                               \
+            for (int j = 0; j < 8; j++) {                                                               \
+                e[j] = inside[j] ? values[j] : 0.0;                                                     \
+                n_in += inside[j];                                                                      \
+            }                                                                                           \
+            const double v = (double)img[p];                                                            \
+            const double total = v + (0.0 + pairwise_sum(e, 8)), count = 1.0 + (double)n_in;            \
+            const Py_ssize_t r = p / W, c = p - r * W;                                                  \
+            double b, nz;                                                                               \
+            mesh_pair_at(bg, noise, ny, nx, block, (double)c, (double)r, &b, &nz);                      \
+            const double box_excess = total - count * b, peak_excess = v - b;                           \
+            if (box_excess >= level * sqrt(count) * nz && box_excess - peak_excess >= ratio * peak_excess) { \
+                pos[M] = i;                                                                             \
+                excess[M] = box_excess;                                                                 \
+                M++;                                                                                    \
+            }                                                                                           \
+        }                                                                                               \
+        if (M == 0) {                                                                                   \
+            label_runs_core(idx, labels, K, W, 1, work);                                                \
+            return 0;                                                                                   \
+        }                                                                                               \
+        /* (the runs' work, 4 K, ends where pos starts) */                                              \
+        int64_t n_labels = label_runs_core(idx, labels, K, W, 1, work);                                 \
+        int64_t *best = work;                 /* (n_labels,): the best star of each component */        \
+        for (int64_t l = 0; l < n_labels; l++) best[l] = -1;                                            \
+        for (Py_ssize_t m = 0; m < M; m++) {                                                            \
+            const int64_t l = labels[pos[m]];                                                           \
+            if (best[l] < 0 || excess[m] > excess[best[l]]) best[l] = m;                                \
+        }                                                                                               \
+        Py_ssize_t n = 0;                                                                               \
+        for (Py_ssize_t m = 0; m < M; m++) {                                                            \
+            const int64_t l = labels[pos[m]];                                                           \
+            if (best[l] != m) continue;                                                                 \
+            peaks_out[n] = idx[pos[m]];                                                                 \
+            label_out[n] = l;                                                                           \
+            n++;                                                                                        \
+        }                                                                                               \
+        return n;                                                                                       \
+    }
+POINT_OBJECTS(u8, uint8_t)
+POINT_OBJECTS(i8, int8_t)
+POINT_OBJECTS(u16, uint16_t)
+POINT_OBJECTS(i16, int16_t)
+POINT_OBJECTS(u32, uint32_t)
+POINT_OBJECTS(i32, int32_t)
+POINT_OBJECTS(u64, uint64_t)
+POINT_OBJECTS(i64, int64_t)
+POINT_OBJECTS(f32, float)
+POINT_OBJECTS(f64, double)
+
+static PyObject *py_point_objects(PyObject *self, PyObject *args) {
+    Py_buffer ib, xb, bb, nb_, pb, lb, sb;
+    Py_ssize_t K, H, W, ny, nx, n = -1;
+    double block, level, ratio;
+    const char *code;
+    if (!PyArg_ParseTuple(args, "y*y*y*y*w*w*w*nnnnnddds", &ib, &xb, &bb, &nb_, &pb, &lb, &sb, &K, &H, &W, &ny, &nx,
+                          &block, &level, &ratio, &code))
+        return NULL;
+    int t = type_index(code);
+    /* work: the runs' 4 K, then the stars' positions and excesses (2 K), then K bytes */
+    int64_t *work = t >= 0 ? malloc(sizeof(int64_t) * (6 * (size_t)K + 1) + (size_t)K + 1) : NULL;
+    if (work) {
+        Py_BEGIN_ALLOW_THREADS
+#define CALL(SUF, T) n = point_objects_##SUF((const T *)ib.buf, xb.buf, K, H, W, bb.buf, nb_.buf, ny, nx, block, level, \
+                                             ratio, pb.buf, lb.buf, sb.buf, work)
+        DISPATCH(t, CALL)
+#undef CALL
+        Py_END_ALLOW_THREADS
+        free(work);
+    }
+    PyBuffer_Release(&ib); PyBuffer_Release(&xb); PyBuffer_Release(&bb); PyBuffer_Release(&nb_);
+    PyBuffer_Release(&pb); PyBuffer_Release(&lb); PyBuffer_Release(&sb);
+    if (t < 0) return NULL;
+    if (n < 0) return PyErr_NoMemory();
+    return PyLong_FromSsize_t(n);
+}
+
 /* ------------------------------------------------------------------ erf_array */
 
 static PyObject *py_erf_array(PyObject *self, PyObject *args) {
@@ -2775,6 +2899,7 @@ static PyMethodDef methods[] = {
     {"label_runs", py_label_runs, METH_VARARGS, "8-connected components of sorted candidate pixels."},
     {"suppress", py_suppress, METH_VARARGS, "Greedy suppression of peaks in a stronger one's footprint."},
     {"streak_peaks", py_streak_peaks, METH_VARARGS, "The line filter's peaks, their components and extents."},
+    {"point_objects", py_point_objects, METH_VARARGS, "Point sources from candidates: peaks, box test, one a component."},
     {"erf_array", py_erf_array, METH_VARARGS, "erf of a float64 array."},
     {"cho_solve", py_cho_solve, METH_VARARGS, "Cholesky substitutions of stacked systems, in place."},
     {"grid_box_z", py_grid_box_z, METH_VARARGS, "Whitened 3 x 3 sums on a regular grid of the mesh."},

@@ -39,7 +39,7 @@ from shipstar.extract._scratch import scratch
 __all__ = ["streak_equations", "streak_fit", "gauss_fit", "gauss_normal", "block_stats", "grid_box_sums",
            "value_step", "median3", "mesh_at",
            "candidates", "local_max", "neighbours", "tap_sum", "line_filter", "box3", "label_runs", "region_shape",
-           "suppress", "streak_peaks", "erf", "persistent_pairs", "persistent_merge"]
+           "suppress", "streak_peaks", "point_objects", "erf", "persistent_pairs", "persistent_merge"]
 
 _TABLE_STEPS = 1024
 
@@ -381,6 +381,30 @@ def streak_peaks(s_image, idx, bg, noise, block_px: int, level: float, threshold
                                float(along_px), float(across_px), float(max_extent_px[0]), float(max_extent_px[1]),
                                s_image.dtype == np.float64)
     return col[:n], row[:n], snr[:n], label[:n], npix[:n], too_big[:n].astype(bool)
+
+
+def point_objects(image, idx, bg, noise, block_px: int, level: float, ratio: float):
+    """Point sources from the candidate pixels ``idx`` (K,) (sorted flat indices) of ``image``
+    (H, W), as ``_point._detect_objects_python`` finds them (the same arithmetic in the same
+    order): ``(peaks (M,), peak_label (M,), labels (K,))`` int64 -- the candidates that are the
+    maximum of their 3 x 3 neighbourhood, whose 3 x 3 box excess over the bilinear background
+    ``bg`` (``noise``; (n_by, n_bx) blocks of ``block_px``) is at least ``level`` (the
+    threshold times the box-noise factor) times ``sqrt(box pixels) noise`` and whose 8
+    neighbours hold at least ``ratio`` of the peak pixel's excess, one a component (the
+    largest box excess; ties the first) in flat-index order, each one's component, and every
+    candidate's 8-connected component (numbered as :func:`label_runs`)."""
+    image, code = _pixels(image)
+    idx = np.ascontiguousarray(idx, dtype=np.int64).reshape(-1)
+    bg, noise = _f8(bg), _f8(noise)
+    if bg.shape != noise.shape or bg.ndim != 2:
+        raise ValueError("point_objects: mesh grids of unequal shapes")
+    if idx.size and (idx[0] < 0 or idx[-1] >= image.size or (idx.size > 1 and not np.all(idx[1:] > idx[:-1]))):
+        raise ValueError("point_objects needs sorted, distinct flat indices on the image")
+    k = idx.size
+    peaks, peak_label, labels = (np.empty(k, dtype=np.int64) for _ in range(3))
+    n = _ckernels.point_objects(image, idx, bg, noise, peaks, peak_label, labels, k, *image.shape, *bg.shape,
+                                float(block_px), float(level), float(ratio), code)
+    return peaks[:n], peak_label[:n], labels
 
 
 def erf(x) -> np.ndarray:

@@ -36,6 +36,7 @@ from shipstar.extract._fit import (
     window_half_px,
 )
 from shipstar.extract._kernels import component_stats as kernel_component_stats
+from shipstar.extract._kernels import point_objects as kernel_point_objects
 from shipstar.extract._kernels import too_sharp as kernel_too_sharp
 from shipstar.extract._result import FLAG_EDGE, FLAG_ELONGATED, FLAG_FIT_FAILED, FLAG_SATURATED
 
@@ -60,7 +61,20 @@ ELONGATION_LIMIT = 2.0
 
 
 def detect_objects(arr, mesh, threshold_sigma):
-    """Star peaks (flat indices, one per component), their components, candidate indices and labels."""
+    """Star peaks (flat indices, one per component), their components, candidate indices and labels.
+
+    The candidates in one pass over the frame, then the peaks among them in one compiled call
+    (:func:`shipstar.extract._kernels.point_objects`: the steps of :func:`_detect_objects_python`
+    bit for bit, ~0.15 ms of NumPy calls a frame).
+    """
+    idx = candidate_pixels(arr, mesh, min(SEGMENT_SIGMA, threshold_sigma))
+    peaks, peak_label, labels = kernel_point_objects(arr, idx, mesh.bg, mesh.noise, mesh.block_px,
+                                                     threshold_sigma * mesh.box_noise_factor, SINGLE_PIXEL_RATIO)
+    return peaks, peak_label, idx, labels
+
+
+def _detect_objects_python(arr, mesh, threshold_sigma):
+    """:func:`detect_objects` in NumPy (the compiled kernel's reference)."""
     shape = arr.shape
     flat = arr.reshape(-1)
     idx = candidate_pixels(arr, mesh, min(SEGMENT_SIGMA, threshold_sigma))
