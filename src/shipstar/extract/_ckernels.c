@@ -700,8 +700,7 @@ static PyObject *py_median3(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
-/* mesh_at(bg, noise (ny, nx), x, y (n,), bg_out, noise_out, ny, nx, n, block): bilinear values
- * between block centres (_background.Mesh.at, the same operations in the same order). */
+/* The weights of one axis of the mesh's bilinear values between block centres. */
 static void mesh_weights(double coord, double block, Py_ssize_t nb, Py_ssize_t *i0, Py_ssize_t *i1, double *f) {
     double g = (coord - (block - 1.0) / 2.0) / block;
     g = clipd(g, 0.0, (double)nb - 1.0);
@@ -713,6 +712,27 @@ static void mesh_weights(double coord, double block, Py_ssize_t nb, Py_ssize_t *
     *f = g - (double)i;
 }
 
+/* Bilinear bg and noise at pixel (x, y) (Mesh.at's arithmetic). */
+static void mesh_pair_at(const double *bg, const double *noise, Py_ssize_t ny, Py_ssize_t nx, double block, double x,
+                         double y, double *b_out, double *n_out) {
+    Py_ssize_t x0, x1, y0, y1;
+    double fx, fy;
+    mesh_weights(x, block, nx, &x0, &x1, &fx);
+    mesh_weights(y, block, ny, &y0, &y1, &fy);
+    const double *grids[2] = {bg, noise};
+    double out[2];
+    for (int q = 0; q < 2; q++) {
+        const double *g = grids[q];
+        double top = g[y0 * nx + x0] * (1 - fx) + g[y0 * nx + x1] * fx;
+        double bottom = g[y1 * nx + x0] * (1 - fx) + g[y1 * nx + x1] * fx;
+        out[q] = top * (1 - fy) + bottom * fy;
+    }
+    *b_out = out[0];
+    *n_out = out[1];
+}
+
+/* mesh_at(bg, noise (ny, nx), x, y (n,), bg_out, noise_out, ny, nx, n, block): bilinear values
+ * between block centres (_background.Mesh.at, the same operations in the same order). */
 static PyObject *py_mesh_at(PyObject *self, PyObject *args) {
     Py_buffer bb, nb_, xb, yb, ob, pb;
     Py_ssize_t ny, nx, n;
@@ -722,18 +742,8 @@ static PyObject *py_mesh_at(PyObject *self, PyObject *args) {
     const double *grids[2] = {bb.buf, nb_.buf}, *x = xb.buf, *y = yb.buf;
     double *outs[2] = {ob.buf, pb.buf};
     Py_BEGIN_ALLOW_THREADS
-    for (Py_ssize_t i = 0; i < n; i++) {
-        Py_ssize_t x0, x1, y0, y1;
-        double fx, fy;
-        mesh_weights(x[i], block, nx, &x0, &x1, &fx);
-        mesh_weights(y[i], block, ny, &y0, &y1, &fy);
-        for (int q = 0; q < 2; q++) {
-            const double *g = grids[q];
-            double top = g[y0 * nx + x0] * (1 - fx) + g[y0 * nx + x1] * fx;
-            double bottom = g[y1 * nx + x0] * (1 - fx) + g[y1 * nx + x1] * fx;
-            outs[q][i] = top * (1 - fy) + bottom * fy;
-        }
-    }
+    for (Py_ssize_t i = 0; i < n; i++)
+        mesh_pair_at(grids[0], grids[1], ny, nx, block, x[i], y[i], &outs[0][i], &outs[1][i]);
     Py_END_ALLOW_THREADS
     PyBuffer_Release(&bb); PyBuffer_Release(&nb_); PyBuffer_Release(&xb); PyBuffer_Release(&yb);
     PyBuffer_Release(&ob); PyBuffer_Release(&pb);
@@ -1898,18 +1908,9 @@ static Py_ssize_t streak_peaks_core(const void *s_img, int is_double, const int6
         double v = is_double ? sd[p] : (double)sf[p];
         if (!(v >= level)) continue;
         Py_ssize_t r = p / W, c = p - r * W;
-        Py_ssize_t x0, x1, y0, y1;
-        double fx, fy, out[2];
-        mesh_weights((double)c, block, nx, &x0, &x1, &fx);
-        mesh_weights((double)r, block, ny, &y0, &y1, &fy);
-        const double *grids[2] = {bg, noise};
-        for (int q = 0; q < 2; q++) {
-            const double *g = grids[q];
-            double top = g[y0 * nx + x0] * (1 - fx) + g[y0 * nx + x1] * fx;
-            double bottom = g[y1 * nx + x0] * (1 - fx) + g[y1 * nx + x1] * fx;
-            out[q] = top * (1 - fy) + bottom * fy;
-        }
-        double z = (v - out[0]) / out[1];
+        double b, nz;
+        mesh_pair_at(bg, noise, ny, nx, block, (double)c, (double)r, &b, &nz);
+        double z = (v - b) / nz;
         if (!(z >= threshold)) continue;
         int ok = 1;                           /* the 3 x 3 maximum (ties: the smallest flat index) */
         for (int dr = -1; dr <= 1 && ok; dr++) {
@@ -1978,8 +1979,8 @@ static Py_ssize_t streak_peaks_core(const void *s_img, int is_double, const int6
         double ea = sqrt(var_a[l] / (double)count[l]), ec = sqrt(var_c[l] / (double)count[l]);
         int big = ea > max_along_px || ec > max_across_px;
         if (big && !first[m]) continue;
-        col_out[out] = (int64_t)xy[2 * ord[m]];
-        row_out[out] = (int64_t)xy[2 * ord[m] + 1];
+        row_out[out] = idx[i] / W;
+        col_out[out] = idx[i] - row_out[out] * W;
         snr_out[out] = snr[ord[m]];
         label_out[out] = l;
         npix_out[out] = count[l];
@@ -2016,25 +2017,6 @@ static PyObject *py_streak_peaks(PyObject *self, PyObject *args) {
 }
 
 /* ------------------------------------------------------------------ point_objects */
-
-/* Bilinear bg and noise at pixel (x, y): py_mesh_at's arithmetic. */
-static void mesh_pair_at(const double *bg, const double *noise, Py_ssize_t ny, Py_ssize_t nx, double block, double x,
-                         double y, double *b_out, double *n_out) {
-    Py_ssize_t x0, x1, y0, y1;
-    double fx, fy;
-    mesh_weights(x, block, nx, &x0, &x1, &fx);
-    mesh_weights(y, block, ny, &y0, &y1, &fy);
-    const double *grids[2] = {bg, noise};
-    double out[2];
-    for (int q = 0; q < 2; q++) {
-        const double *g = grids[q];
-        double top = g[y0 * nx + x0] * (1 - fx) + g[y0 * nx + x1] * fx;
-        double bottom = g[y1 * nx + x0] * (1 - fx) + g[y1 * nx + x1] * fx;
-        out[q] = top * (1 - fy) + bottom * fy;
-    }
-    *b_out = out[0];
-    *n_out = out[1];
-}
 
 /* point_objects(image, idx (K,) i8 sorted candidates, bg, noise (ny, nx) f8, peaks_out, label_out,
  *               labels_out (K,) i8, K, H, W, ny, nx, block, level (threshold x box-noise factor), ratio, type)
