@@ -735,6 +735,23 @@ def test_compiled_point_objects_are_the_numpy_reference_bit_for_bit():
     assert n_objects > 500                          # (the cases the test is for were met)
 
 
+def test_candidate_kernels_refuse_unsorted_or_off_image_indices():
+    """The C code trusts its inputs: the wrappers of the peak kernels refuse candidate indices
+    that are unsorted, repeated or off the image, and mesh grids of unequal shapes."""
+    from shipstar.extract._kernels import point_objects, streak_peaks
+
+    image, bg, noise = np.zeros((8, 8), dtype=np.float32), np.zeros((2, 2)), np.ones((2, 2))
+    for idx in ([5, 3], [3, 3], [-1, 2], [2, 64]):
+        with pytest.raises(ValueError, match="sorted, distinct flat indices"):
+            streak_peaks(image, idx, bg, noise, 4, 0.0, 1.0, (1.0, 0.0), 3.0, 2.0, (9.0, 9.0))
+        with pytest.raises(ValueError, match="sorted, distinct flat indices"):
+            point_objects(image, idx, bg, noise, 4, 5.0, 0.5)
+    with pytest.raises(ValueError, match="mesh grids"):
+        point_objects(image, [1, 2], bg, np.ones((2, 3)), 4, 5.0, 0.5)
+    peaks, _, labels = point_objects(image, [1, 2], bg, noise, 4, 5.0, 0.5)   # flat: no star, one component
+    assert len(peaks) == 0 and labels.tolist() == [0, 0]
+
+
 def test_work_arrays_kept_between_frames_do_not_leak_into_results():
     """The line filter and the fits reuse per-thread work arrays: a frame of another size or
     with other stars in between must not change a frame's result."""

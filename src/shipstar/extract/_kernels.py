@@ -352,6 +352,18 @@ def suppress(xy, order, u, along_px: float, across_px: float) -> np.ndarray:
     return dropped.astype(bool)
 
 
+def _candidates_and_mesh(name: str, idx, size: int, bg, noise):
+    """``(idx, bg, noise)`` as the candidate kernels read them: sorted, distinct flat indices
+    (K,) int64 on an image of ``size`` pixels, and the mesh's two (n_by, n_bx) float64 grids."""
+    idx = np.ascontiguousarray(idx, dtype=np.int64).reshape(-1)
+    bg, noise = _f8(bg), _f8(noise)
+    if bg.shape != noise.shape or bg.ndim != 2:
+        raise ValueError(f"{name}: mesh grids of unequal shapes")
+    if idx.size and (idx[0] < 0 or idx[-1] >= size or (idx.size > 1 and not np.all(idx[1:] > idx[:-1]))):
+        raise ValueError(f"{name} needs sorted, distinct flat indices on the image")
+    return idx, bg, noise
+
+
 def streak_peaks(s_image, idx, bg, noise, block_px: int, level: float, threshold: float, u, along_px: float,
                  across_px: float, max_extent_px):
     """The line filter's peaks from its candidate pixels, as ``_matched._streak_peaks_python``
@@ -367,12 +379,7 @@ def streak_peaks(s_image, idx, bg, noise, block_px: int, level: float, threshold
     s_image = np.asarray(s_image)
     if s_image.dtype not in (np.float32, np.float64) or s_image.ndim != 2 or not s_image.flags.c_contiguous:
         raise ValueError("streak_peaks: the filter image must be a C-contiguous 2-D float32 or float64 array")
-    idx = np.ascontiguousarray(idx, dtype=np.int64).reshape(-1)
-    bg, noise = _f8(bg), _f8(noise)
-    if bg.shape != noise.shape or bg.ndim != 2:
-        raise ValueError("streak_peaks: mesh grids of unequal shapes")
-    if idx.size and (idx[0] < 0 or idx[-1] >= s_image.size or (idx.size > 1 and not np.all(idx[1:] > idx[:-1]))):
-        raise ValueError("streak_peaks needs sorted, distinct flat indices on the image")
+    idx, bg, noise = _candidates_and_mesh("streak_peaks", idx, s_image.size, bg, noise)
     k = idx.size
     col, row, label, npix = (np.empty(k, dtype=np.int64) for _ in range(4))
     snr, too_big = np.empty(k), np.empty(k, dtype=np.uint8)
@@ -394,12 +401,7 @@ def point_objects(image, idx, bg, noise, block_px: int, level: float, ratio: flo
     largest box excess; ties the first) in flat-index order, each one's component, and every
     candidate's 8-connected component (numbered as :func:`label_runs`)."""
     image, code = _pixels(image)
-    idx = np.ascontiguousarray(idx, dtype=np.int64).reshape(-1)
-    bg, noise = _f8(bg), _f8(noise)
-    if bg.shape != noise.shape or bg.ndim != 2:
-        raise ValueError("point_objects: mesh grids of unequal shapes")
-    if idx.size and (idx[0] < 0 or idx[-1] >= image.size or (idx.size > 1 and not np.all(idx[1:] > idx[:-1]))):
-        raise ValueError("point_objects needs sorted, distinct flat indices on the image")
+    idx, bg, noise = _candidates_and_mesh("point_objects", idx, image.size, bg, noise)
     k = idx.size
     peaks, peak_label, labels = (np.empty(k, dtype=np.int64) for _ in range(3))
     n = _ckernels.point_objects(image, idx, bg, noise, peaks, peak_label, labels, k, *image.shape, *bg.shape,
