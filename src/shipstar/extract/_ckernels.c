@@ -2060,12 +2060,9 @@ static PyObject *py_streak_peaks(PyObject *self, PyObject *args) {
                 M++;                                                                                    \
             }                                                                                           \
         }                                                                                               \
-        if (M == 0) {                                                                                   \
-            label_runs_core(idx, labels, K, W, 1, work);                                                \
-            return 0;                                                                                   \
-        }                                                                                               \
-        /* (the runs' work, 4 K, ends where pos starts) */                                              \
-        int64_t n_labels = label_runs_core(idx, labels, K, W, 1, work);                                 \
+        /* every candidate's component (the runs' work, 4 K, ends where pos starts) */                  \
+        const int64_t n_labels = label_runs_core(idx, labels, K, W, 1, work);                           \
+        if (M == 0) return 0;                                                                           \
         int64_t *best = work;                 /* (n_labels,): the best star of each component */        \
         for (int64_t l = 0; l < n_labels; l++) best[l] = -1;                                            \
         for (Py_ssize_t m = 0; m < M; m++) {                                                            \
