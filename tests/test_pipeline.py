@@ -260,6 +260,45 @@ def test_scan_frames_reports_its_progress_block_by_block(tmp_path, monkeypatch):
     assert calls == [(2, 5)] and read == [["f0.fits", "f1.fits"], ["f2.fits", "f3.fits"]]
 
 
+def test_reading_ahead_keeps_the_frames_their_order_and_its_pace(tmp_path, monkeypatch):
+    """``read_ahead`` yields the very items it is given, in order, taking each from its source
+    at most ``depth`` items early (a generator is not drained: a night's merged frames are not
+    all listed at once); frames in memory pass through, a file that is gone is left to its
+    read to report.  The index read with its headers asked ahead is the index read without."""
+    import shipstar.pipeline._frames as frames_module
+    from shipstar._fitsio import advise_will_read
+    from shipstar.pipeline._frames import read_ahead, read_header_block
+
+    for k in range(7):
+        _write_fits(tmp_path / f"f{k}.fits", f"2013-03-15T12:16:00.{k}00")
+    frames = list(scan_frames(tmp_path))
+    frames[3] = replace(frames[3], path=None, image=np.zeros((4, 4)))            # in memory
+    frames[5] = replace(frames[5], path=tmp_path / "gone.fits")                  # no such file
+    for depth in (0, 1, 2, 10):
+        taken = []
+
+        def source():
+            for f in frames:
+                taken.append(f)
+                yield f
+
+        out = []
+        for f in read_ahead(source(), depth):
+            assert len(taken) == min(len(out) + 1 + depth, len(frames))          # its pace
+            out.append(f)
+        assert len(out) == len(frames) and all(a is b for a, b in zip(out, frames))
+    items = [(0.1 * k, k % 2, k, f) for k, f in enumerate(frames)]
+    assert list(read_ahead(iter(items), frame_of=lambda item: item[3])) == items
+    for path in (None, tmp_path / "gone.fits", tmp_path):                        # nothing to advise: no error
+        advise_will_read(path)
+    paths = sorted(tmp_path.glob("f*.fits")) + [tmp_path / "gone.fits"]
+    ahead_infos, ahead_error = read_header_block(paths)
+    monkeypatch.setattr(frames_module, "INDEX_READ_AHEAD_FILES", 0)
+    infos, error = read_header_block(paths)
+    assert [(i.name, i.utc_jd1, i.utc_jd2) for i in ahead_infos] == [(i.name, i.utc_jd1, i.utc_jd2) for i in infos]
+    assert len(infos) == 7 and str(ahead_error) == str(error) and "gone.fits" in str(error)
+
+
 def test_scan_frames_bad_input(tmp_path):
     with pytest.raises(ShipstarError, match="not a directory"):
         scan_frames(tmp_path / "missing")

@@ -21,7 +21,8 @@ from shipstar.errors import ShipstarError
 from shipstar.units import DAY_S
 
 __all__ = ["Frame", "scan_frames", "frame_paths", "read_header_block", "header_blocks", "read_fits_frame",
-           "check_sensor_name", "time_sources", "FITS_SUFFIXES", "INDEX_BLOCK_MIN_FILES", "INDEX_BLOCKS_PER_WORKER"]
+           "check_sensor_name", "time_sources", "read_ahead", "FITS_SUFFIXES", "INDEX_BLOCK_MIN_FILES",
+           "INDEX_BLOCKS_PER_WORKER", "INDEX_READ_AHEAD_FILES", "READ_AHEAD_FRAMES"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -178,20 +179,58 @@ def header_blocks(paths, workers: int, *, min_files: int | None = None, per_work
     return [paths[lo:lo + size] for lo in range(0, len(paths), size)] or [[]]
 
 
+#: While an index is read, the OS is asked for the headers of this many files ahead of the one
+#: being read (:func:`shipstar._fitsio.advise_will_read`): headers not in the page cache (a
+#: night's 1.4 TB of frames never are) come ~4x faster, ~5 us a header more when they are.
+INDEX_READ_AHEAD_FILES = 128
+#: While frames are processed, the OS is asked for the files of this many frames ahead.
+READ_AHEAD_FRAMES = 2
+
+
 def read_header_block(paths, date_obs_is: str = "start") -> tuple:
     """``(infos, error)``: the headers of ``paths`` (:class:`~shipstar._fitsio.FitsFrameInfo`),
     read in order up to the first that cannot be, and that one's ShipstarError (None when
     all were read).  One block of an index (:func:`scan_frames`), read here or on another
-    process or machine (``shipstar measure-archive`` has its cluster's workers read them)."""
-    from shipstar._fitsio import read_fits_header
+    process or machine (``shipstar measure-archive`` has its cluster's workers read them).
+    The headers of the next :data:`INDEX_READ_AHEAD_FILES` files are asked of the OS ahead."""
+    from shipstar._fitsio import HEADER_READ_BYTES, advise_will_read, read_fits_header
 
+    paths = list(paths)
+    ahead = INDEX_READ_AHEAD_FILES
+    for p in paths[:ahead]:
+        advise_will_read(p, HEADER_READ_BYTES)
     infos = []
-    for p in paths:
+    for k, p in enumerate(paths):
+        if k + ahead < len(paths):
+            advise_will_read(paths[k + ahead], HEADER_READ_BYTES)
         try:
             infos.append(read_fits_header(p, date_obs_is=date_obs_is))
         except ShipstarError as exc:
             return infos, exc
     return infos, None
+
+
+def read_ahead(items, depth: int = READ_AHEAD_FRAMES, frame_of=None):
+    """``items`` (an iterable) again, in order, each taken from it ``depth`` items before it is
+    yielded, and the OS asked for the whole file of each frame read from a file as it is
+    taken (:func:`shipstar._fitsio.advise_will_read`), so that the disk reads the next frames
+    while this one is processed.  ``frame_of(item)`` gives an item's :class:`Frame` (default:
+    the item itself); frames with an image or centroids in memory are passed through."""
+    from collections import deque
+
+    from shipstar._fitsio import advise_will_read
+
+    frame_of = (lambda item: item) if frame_of is None else frame_of
+    waiting = deque()
+    for item in items:
+        frame = frame_of(item)
+        if frame.image is None and frame.xy_px is None:
+            advise_will_read(frame.path)
+        waiting.append(item)
+        if len(waiting) > depth:
+            yield waiting.popleft()
+    while waiting:
+        yield waiting.popleft()
 
 
 #: Headers read at a time by :func:`scan_frames` when it reports its progress (a 10-hour night

@@ -271,6 +271,7 @@ def process_chunk(job: MeasureJob, sensor: int, piece, lo: int, keep_from: int, 
     message is attached to the first result at or after the frame where it arose, so it
     reaches the CSV at the same place however the work is split."""
     from shipstar.errors import AccuracyWarning
+    from shipstar.pipeline._frames import read_ahead
     from shipstar.pipeline._sensor import SensorProcessor
 
     use_job_tables(job)
@@ -278,7 +279,7 @@ def process_chunk(job: MeasureJob, sensor: int, piece, lo: int, keep_from: int, 
     out, held, n_caught = [], [], 0
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", AccuracyWarning)
-        for k, frame in enumerate(piece.load(), start=lo):
+        for k, frame in enumerate(read_ahead(piece.load()), start=lo):     # the next files read meanwhile
             fr = proc.process(frame, k, frame.seconds_since(*job.start_utc_jd))
             for w in caught[n_caught:]:
                 if issubclass(w.category, AccuracyWarning):

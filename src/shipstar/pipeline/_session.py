@@ -123,6 +123,7 @@ def process_sensor(config, frames, track, weather, options=None, *, start_utc_jd
     -------
     tuple of FrameResult
     """
+    from shipstar.pipeline._frames import read_ahead
     from shipstar.pipeline._options import PipelineOptions
     from shipstar.pipeline._sensor import SensorProcessor
 
@@ -132,7 +133,7 @@ def process_sensor(config, frames, track, weather, options=None, *, start_utc_jd
     j1, j2 = start_utc_jd if start_utc_jd is not None else (frames[0].utc_jd1, frames[0].utc_jd2)
     proc = SensorProcessor(config, track, weather, options, database=database, lookup=lookup)
     out = []
-    for k, fr in enumerate(frames):
+    for k, fr in enumerate(read_ahead(frames)):              # the next frames' files read meanwhile
         out.append(proc.process(fr, k, fr.seconds_since(j1, j2)))
         if progress is not None:
             progress(config.name, k + 1, len(frames))
@@ -200,6 +201,7 @@ def process_session(configs, frames, track, weather, options=None, *, reference:
         outside the track or weather tables, an unknown reference sensor.
     """
     from shipstar.pipeline._engine import SessionEngine
+    from shipstar.pipeline._frames import read_ahead
     from shipstar.pipeline._options import PipelineOptions
     from shipstar.pipeline._sensor import SensorProcessor
 
@@ -216,7 +218,7 @@ def process_session(configs, frames, track, weather, options=None, *, reference:
              for c in configs]
     engine = SessionEngine(configs, options, start_utc_jd=start, reference=ref, smooth_lag_s=smooth_lag_s)
     results, emissions = [[] for _ in configs], []
-    for t, s, k, frame in merged_frames(lists, start):
+    for t, s, k, frame in read_ahead(merged_frames(lists, start), frame_of=lambda item: item[3]):
         fr = procs[s].process(frame, k, t)
         results[s].append(fr)
         emissions += engine.add(fr)
