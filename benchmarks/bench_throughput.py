@@ -24,8 +24,11 @@ alone (``sep.Background`` + ``sep.extract``, C code) on the same frames of both 
 already in memory and converted to float32, at shipstar's detection threshold
 (``PipelineOptions.threshold_sigma`` times sep's global background RMS), ``minarea=3``;
 the chain and sep are timed alternately in the same run (``--repeat`` rounds), best of
-each; target: whole chain <= 0.4x sep's extraction.  Also printed: shipstar's extraction
-alone on the same frames (timed in the same rounds).  Threads are limited to one
+each; target: whole chain <= 0.4x sep's extraction.  Also printed: the median of the
+rounds' own ratios (each round's chain against the same round's sep, seconds apart: on a
+host whose speed drifts by tens of percent within minutes, the bests of the two may come
+from different minutes), and shipstar's extraction alone on the same frames (timed in the
+same rounds).  Threads are limited to one
 (``OMP_NUM_THREADS`` etc. set before NumPy loads).
 
 Also printed: the same chain with windowed tracking (``PipelineOptions.windowed_full_frame_every``,
@@ -184,16 +187,20 @@ def main():
         if windowed:
             run_chain(directory, windowed)
         best, best_sep, best_ex, best_win, result = np.inf, np.inf, np.inf, np.inf, None
+        rounds = []                                           # (chain s, sep s per frame) of each round
         for _ in range(args.repeat):                          # interleaved: chain, sep, extraction, windowed
             t0 = time.perf_counter()
             result = run_chain(directory)
-            best = min(best, time.perf_counter() - t0)
+            chain_s = time.perf_counter() - t0
+            best = min(best, chain_s)
             if windowed:
                 t0 = time.perf_counter()
                 result_win = run_chain(directory, windowed)
                 best_win = min(best_win, time.perf_counter() - t0)
             if sep_ok:
-                best_sep = min(best_sep, time_sep_once(images32, threshold))
+                sep_s = time_sep_once(images32, threshold)
+                best_sep = min(best_sep, sep_s)
+                rounds.append((chain_s, sep_s))
             best_ex = min(best_ex, time_extract_once(images, threshold))
         n = [len(f) for f in result.frames]
         solved = [sum(fr.solved for fr in f) for f in result.frames]
@@ -214,6 +221,11 @@ def main():
                   f"{1e3 * best_sep:.2f} ms (float32, threshold {threshold:g} sigma, interleaved, best of "
                   f"{args.repeat}): ratio {ratio:.2f} (target <= 0.4: {'PASS' if ratio <= 0.4 else 'FAIL'}); "
                   f"extraction alone / sep = {best_ex / best_sep:.2f}")
+            # each round's chain and sep ran within seconds of each other: their ratio is less
+            # exposed to the host's speed drifting between rounds than the ratio of the bests
+            paired = [c / sum(n) / s for c, s in rounds]
+            print(f"  paired: each round's chain against the same round's sep: median {np.median(paired):.2f} "
+                  f"({', '.join(f'{x:.2f}' for x in paired)})")
         else:
             print("\nsep is not installed (pip install sep): no acceptance ratio")
         if windowed:
