@@ -194,15 +194,26 @@ def _filter_mesh(s_image, mesh) -> Mesh:
     return replace(mesh_s, noise=noise, box_noise_factor=1.0)
 
 
-def _suppress(xy, strength, lf: LineFilter, across_px: float) -> np.ndarray:
-    """Indices (strongest first) of peaks not within the streak footprint of a stronger peak."""
+def _suppress(xy, strength, u, along_px: float, across_px: float) -> np.ndarray:
+    """Indices (strongest first) of peaks not within ``along_px`` along the unit smear ``u``
+    (2,) and ``across_px`` across it of a stronger peak."""
     order = np.argsort(-strength, kind="stable")
     if len(order) < 2:
         return order
-    u = lf.smear_px / max(lf.length_px, 1e-12)
     # greedy, strongest first: a peak is dropped only by a stronger peak that was kept
-    dropped = suppress(xy, order, u, lf.length_px + 1.5, across_px)
+    dropped = suppress(xy, order, u, along_px, across_px)
     return order[~dropped[order]]
+
+
+def _peak_rule(mesh_s: Mesh, lf: LineFilter, threshold_sigma: float, psf_sigma_px: float) -> tuple:
+    """What makes a peak of the line filter's image, for the compiled kernel and its NumPy
+    reference alike: ``(level, u, along_px, across_px, max_extent_px)`` -- the lowest value
+    the mesh lets reach ``threshold_sigma`` (a cheap first cut), the unit smear (2,), the
+    suppression's reach along and across it (px), and the RMS extent (2,) along and across
+    beyond which a component is a trail or an edge (px)."""
+    level = np.min(mesh_s.bg + threshold_sigma * mesh_s.noise)
+    u = lf.smear_px / max(lf.length_px, 1e-12)
+    return level, u, lf.length_px + 1.5, 2.5 + psf_sigma_px, EXTENT_FACTOR * _single_extent_px(lf, psf_sigma_px)
 
 
 def detect_streaks(image, mesh: Mesh, lf: LineFilter, threshold_sigma: float, segment_sigma: float,
@@ -223,10 +234,9 @@ def detect_streaks(image, mesh: Mesh, lf: LineFilter, threshold_sigma: float, se
     s_image = line_filter(image, mesh.background_adu, lf, patch)
     mesh_s = _filter_mesh(s_image, mesh)
     idx = candidate_pixels(s_image, mesh_s, segment_sigma)
-    col, row, snr, label, npix, too_big = streak_peaks(
-        s_image, idx, mesh_s.bg, mesh_s.noise, mesh_s.block_px, np.min(mesh_s.bg + threshold_sigma * mesh_s.noise),
-        threshold_sigma, lf.smear_px / max(lf.length_px, 1e-12), lf.length_px + 1.5, 2.5 + psf_sigma_px,
-        EXTENT_FACTOR * _single_extent_px(lf, psf_sigma_px))
+    level, u, along_px, across_px, max_extent_px = _peak_rule(mesh_s, lf, threshold_sigma, psf_sigma_px)
+    col, row, snr, label, npix, too_big = streak_peaks(s_image, idx, mesh_s.bg, mesh_s.noise, mesh_s.block_px, level,
+                                                       threshold_sigma, u, along_px, across_px, max_extent_px)
     return dict(col=col, row=row, snr=snr, label=label, npix=npix, too_big=too_big)
 
 
@@ -240,9 +250,10 @@ def _streak_peaks_python(s_image, idx, mesh_s: Mesh, lf: LineFilter, threshold_s
     ``mesh_s`` and its candidate pixels ``idx``, in NumPy: the compiled kernel's reference
     (:func:`shipstar.extract._kernels.streak_peaks`)."""
     flat = s_image.reshape(-1)
+    level, u, along_px, across_px, max_extent_px = _peak_rule(mesh_s, lf, threshold_sigma, psf_sigma_px)
     # the peaks that count are local maxima among the pixels >= threshold_sigma (bilinear mesh,
     # whose values are never below the lowest block's: a cheap first cut)
-    high = idx[flat[idx] >= np.min(mesh_s.bg + threshold_sigma * mesh_s.noise)]
+    high = idx[flat[idx] >= level]
     row, col = np.divmod(high, s_image.shape[1])
     bg, noise = mesh_s.at(col, row)
     snr = (flat[high] - bg) / noise
@@ -251,7 +262,7 @@ def _streak_peaks_python(s_image, idx, mesh_s: Mesh, lf: LineFilter, threshold_s
     pick = np.searchsorted(high, peaks)
     row, col, snr = row[pick], col[pick], snr[pick]
     xy = np.stack([col, row], axis=1).astype(float)
-    kept = _suppress(xy, snr, lf, 2.5 + psf_sigma_px)
+    kept = _suppress(xy, snr, u, along_px, across_px)
     peaks, row, col, snr = peaks[kept], row[kept], col[kept], snr[kept]
     labels, n_labels = components(idx, s_image.shape)
     label = labels[np.searchsorted(idx, peaks)] if len(peaks) else np.zeros(0, dtype=np.int64)
@@ -264,7 +275,7 @@ def _streak_peaks_python(s_image, idx, mesh_s: Mesh, lf: LineFilter, threshold_s
     sel = compact[labels] >= 0
     extent = _component_extent(idx[sel], compact[labels[sel]], len(with_peak), s_image.shape[1], lf)[compact[label]]
     # a component longer or wider than one streak is a trail or an edge: its strongest peak only
-    too_big = np.any(extent > EXTENT_FACTOR * _single_extent_px(lf, psf_sigma_px), axis=1)
+    too_big = np.any(extent > max_extent_px, axis=1)
     keep = ~too_big
     keep[first] = True
     return dict(col=col[keep], row=row[keep], snr=snr[keep], label=label[keep], npix=npix[label][keep],
