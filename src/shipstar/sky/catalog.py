@@ -450,7 +450,7 @@ def _read_npz(path: pathlib.Path, key: str) -> StarCatalog | None:
     import zipfile                      # here: `shipstar solve` reads no catalog
 
     try:
-        with np.load(path, allow_pickle=False) as z:
+        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:    # (closed if not a zip too)
             if str(z["key"]) != key:
                 return None
             return StarCatalog(**{name: z[name] for name in _FIELDS})
