@@ -275,3 +275,45 @@ def test_the_tables_identity_is_its_content_not_its_place(tmp_path, monkeypatch)
     finally:
         eop_mod.set_eop_file(None)
     assert eop_mod.eop_identity() == (packaged_source, packaged)
+
+
+def test_a_parsed_table_is_kept_by_its_content_and_read_back_whole(tmp_path, monkeypatch):
+    """The parsed columns are kept in the cache directory by the file's content: a process
+    reading the same bytes (at any path) gets the very columns the parse gave, without
+    parsing; a damaged kept file is parsed again; a changed table is another file; only
+    the three most recent are kept."""
+    monkeypatch.setenv("SHIPSTAR_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.delenv(eop_mod.EOP_FILE_ENV, raising=False)
+    same = altered_table_copy(tmp_path / "same.all", change_ut1=False)
+    parsed = eop_mod._parse_finals(str(same))
+    eop_mod._table.cache_clear()
+    try:
+        eop_mod._table(str(same))                                       # parsed and kept
+        kept = sorted((tmp_path / "cache").glob("eop_v*_*.npz"))
+        assert len(kept) == 1
+        eop_mod._table.cache_clear()
+        moved = (tmp_path / "moved.all")
+        moved.write_bytes(same.read_bytes())
+        monkeypatch.setattr(eop_mod, "_parse_finals", lambda *a: pytest.fail("parsed again"))
+        table = eop_mod._table(str(moved))
+        assert table.source == str(moved)
+        for name in eop_mod._COLUMNS:
+            a, b = getattr(table, name), getattr(parsed, name)
+            assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=a.dtype.kind == "f"), name
+        monkeypatch.undo()
+        monkeypatch.setenv("SHIPSTAR_CACHE_DIR", str(tmp_path / "cache"))
+        kept[0].write_bytes(kept[0].read_bytes()[:1000])                # damaged: parsed again
+        eop_mod._table.cache_clear()
+        calls = []
+        real = eop_mod._parse_finals
+        monkeypatch.setattr(eop_mod, "_parse_finals", lambda *a: calls.append(a[0]) or real(*a))
+        assert np.array_equal(eop_mod._table(str(same)).ut1_tai_s, parsed.ut1_tai_s) and calls == [str(same)]
+        for k in range(3):                                              # other tables: other files
+            other = altered_table_copy(tmp_path / f"other{k}.all", change_ut1=True)
+            with open(other, "ab") as fh:
+                fh.write(b"\n" * (k + 1))                               # blank lines: other bytes
+            eop_mod._table(str(other))
+        assert len(list((tmp_path / "cache").glob("eop_v*_*.npz"))) == 3
+        assert eop_mod._table(str(other)).ut1_tai_s[0] != parsed.ut1_tai_s[0]
+    finally:
+        eop_mod._table.cache_clear()

@@ -15,8 +15,9 @@ examples:
 
 The cache (SHIPSTAR_CACHE_DIR, default ~/.cache/shipstar) holds the star databases of
 'shipstar solve' and the pipeline (identify/stardb_*: one per camera and one per
-field-of-view band of uncalibrated images) and the parsed Hipparcos / navigation
-catalogs (hip2_*, nav_*, hipmag_*).  Everything in it is rebuilt on demand.  It is kept within
+field-of-view band of uncalibrated images), the parsed Hipparcos / navigation
+catalogs (hip2_*, nav_*, hipmag_*) and Earth orientation tables (eop_*, the three most
+recent).  Everything in it is rebuilt on demand.  It is kept within
 400 MB and 48 files (SHIPSTAR_CACHE_MAX_MB, SHIPSTAR_CACHE_MAX_FILES): after a new
 database is written, the least recently used files are removed.
 

@@ -393,7 +393,7 @@ CACHE_MAX_MB = 400.0
 CACHE_MAX_FILES = 48
 #: files of the cache directory that shipstar made and may remove (relative globs)
 CACHE_PATTERNS = ("identify/stardb_*", "hip2_v*_*.npz", "nav_v*_*.npz", "hipmag_v*_*.npy",
-                  "source_identity_v*.json")
+                  "source_identity_v*.json", "eop_v*_*.npz")
 
 
 def _cache_path(params: DatabaseParams):

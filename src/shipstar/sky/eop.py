@@ -186,13 +186,18 @@ def _flag(block: np.ndarray, col: int) -> np.ndarray:
     return block[:, col - 1].view("S1").ravel()
 
 
-def _parse_finals(path: str) -> _Table:
-    """Parse ``finals2000A.all`` (format: ``ReadMe.finals2000A``)."""
+def _read_table_file(path: str) -> bytes:
     try:
         with open(path, "rb") as fh:
-            raw = fh.read()
+            return fh.read()
     except OSError as exc:
         raise ShipstarError(f"cannot read the IERS table {path}: {exc.strerror}") from None
+
+
+def _parse_finals(path: str, raw: bytes | None = None) -> _Table:
+    """Parse ``finals2000A.all`` (format: ``ReadMe.finals2000A``); ``raw``: its bytes, read already."""
+    if raw is None:
+        raw = _read_table_file(path)
     lines = [ln.ljust(187)[:187] for ln in raw.split(b"\n") if ln.strip()]
     block = np.frombuffer(b"".join(lines), dtype="S1").reshape(len(lines), 187)
     mjd = _field(block, 8, 15)
@@ -225,13 +230,77 @@ def _parse_finals(path: str) -> _Table:
 _DIGESTS: "weakref.WeakKeyDictionary[_Table, str]" = weakref.WeakKeyDictionary()
 
 
+#: The parsed columns of a table, kept in the cache directory (``eop_v1_<digest>.npz``) by
+#: the file's content: parsing the 3.8 MB text took ~55 ms of every process that needs Earth
+#: orientation (``measure``, ``live``, each ``measure-archive`` driver); reading the file,
+#: hashing it and loading the stored columns ~10 ms.
+_CACHE_FORMAT = 1
+_CACHE_PREFIX = f"eop_v{_CACHE_FORMAT}_"
+#: Parsed tables kept in the cache directory (the most recently written; a new
+#: astropy-iers-data release, or ``--eop FILE``, writes another).
+_CACHE_KEEP_FILES = 3
+_COLUMNS = ("mjd", "ut1_tai_s", "xp_arcsec", "yp_arcsec", "ut1_error_s", "pm_error_arcsec", "measured")
+
+
+def _cache_path(raw: bytes):
+    """Where the parsed table of a file with content ``raw`` is kept (None: no usable
+    cache directory)."""
+    import hashlib
+
+    from shipstar.sky.catalog import cache_dir
+
+    try:
+        return cache_dir() / f"{_CACHE_PREFIX}{hashlib.sha256(raw).hexdigest()[:24]}.npz"    # ~2 ms
+    except ShipstarError:
+        return None
+
+
+def _read_cached(cache, source: str) -> _Table | None:
+    """The table kept at ``cache``, or None (missing, unreadable or not whole)."""
+    import zipfile
+
+    try:
+        with open(cache, "rb") as fh, np.load(fh, allow_pickle=False) as z:     # (closed if not a zip too)
+            cols = {name: z[name] for name in _COLUMNS}
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+        return None
+    n = len(cols["mjd"])
+    if n < 400 or any(c.shape != (n,) for c in cols.values()) or cols["measured"].dtype != bool:
+        return None
+    return _Table(source=source, **cols)
+
+
+def _write_cached(cache, table: _Table) -> None:
+    """Keep ``table`` at ``cache`` (atomically) and only the :data:`_CACHE_KEEP_FILES` most
+    recent such files; a directory that cannot be written only means the next process
+    parses the file again."""
+    from shipstar._atomic import atomic_path
+
+    try:
+        with atomic_path(cache) as tmp, open(tmp, "wb") as fh:
+            np.savez(fh, **{name: getattr(table, name) for name in _COLUMNS})
+        kept = sorted(cache.parent.glob(f"{_CACHE_PREFIX}*.npz"), key=lambda p: p.stat().st_mtime, reverse=True)
+        for old in kept[_CACHE_KEEP_FILES:]:
+            if old != cache:
+                old.unlink()
+    except (OSError, ShipstarError):
+        pass
+
+
 @functools.lru_cache(maxsize=4)
 def _table(path: str | None = None) -> _Table:
     if path is None:
         from astropy_iers_data import IERS_A_FILE
 
         path = str(IERS_A_FILE)
-    return _parse_finals(path)
+    raw = _read_table_file(path)
+    cache = _cache_path(raw)
+    table = None if cache is None else _read_cached(cache, str(path))
+    if table is None:
+        table = _parse_finals(path, raw)
+        if cache is not None:
+            _write_cached(cache, table)
+    return table
 
 
 #: Environment variable holding the IERS table in use (``--eop FILE``); an environment
