@@ -25,8 +25,9 @@ on this shared host -- ran on a slower host, and a pair of 2.06x on 2 cores has 
 seen; the correction assumes the same CPU time for the same work, and on 2026-11-29 the
 1-worker runs took 25.8-30.6 s of CPU against 25.0-26.5 s for 2 workers in alternated
 runs, which this host cannot tell from a real cost of the 1-worker run: read both
-figures), serial measure against 2
-archive workers, and whether every CSV is byte-identical to serial measure's (md5 of the file without its
+figures), the 2-worker command's own CPU (``--json``'s ``cpu.command_s``: the merge, fusion,
+CSV and Dask in the command's process) against its workers' and the bound it sets on two
+cores, ``2 W / (W + D)``, serial measure against 2 archive workers, and whether every CSV is byte-identical to serial measure's (md5 of the file without its
 ``# software`` provenance line, which names the commit: comparable between commits; the code must not change
 while the benchmark runs).
 
@@ -101,11 +102,13 @@ def run(root: Path, name: str, command: str, workers: int, chunk_s: float, env: 
     summary = json.loads(proc.stdout)
     process_s = summary["wall"]["process_s"] if "wall" in summary else wall
     connect_s = summary["wall"]["connect_s"] if "wall" in summary else 0.0
+    driver_cpu_s = summary.get("cpu", {}).get("command_s", cpu)     # measure: the command is all of it
     # the rows' md5: the file without its provenance line (``# software = ...``: the code's
     # identity, which changes with every commit), comparable from one commit to the next
     text = b"".join(line for line in out.read_bytes().splitlines(keepends=True) if not line.startswith(b"# software"))
     md5 = hashlib.md5(text).hexdigest()
-    return {"wall_s": wall, "process_s": process_s, "connect_s": connect_s, "cpu_s": cpu, "md5": md5}
+    return {"wall_s": wall, "process_s": process_s, "connect_s": connect_s, "cpu_s": cpu, "md5": md5,
+            "driver_cpu_s": driver_cpu_s}
 
 
 def main(argv=None) -> int:
@@ -137,8 +140,8 @@ def main(argv=None) -> int:
             res = run(root, name, *plan[name], a.chunk_s, env)
             runs[name].append(res)
             print(f"  repeat {r + 1} {name:6s} wall {res['wall_s']:6.1f} s  cluster start {res['connect_s']:4.1f} s  "
-                  f"processing {res['process_s']:6.1f} s  CPU {res['cpu_s']:6.1f} s  load {os.getloadavg()[0]:5.2f}  "
-                  f"md5 {res['md5']}", flush=True)
+                  f"processing {res['process_s']:6.1f} s  CPU {res['cpu_s']:6.1f} s (the command's own "
+                  f"{res['driver_cpu_s']:4.1f} s)  load {os.getloadavg()[0]:5.2f}  md5 {res['md5']}", flush=True)
         d1, d2 = runs["dask1"][-1], runs["dask2"][-1]
         print(f"  repeat {r + 1} pair: {d1['wall_s'] / d2['wall_s']:.2f}x whole command, "
               f"{d1['process_s'] / d2['process_s']:.2f}x processing", flush=True)
@@ -168,6 +171,14 @@ def main(argv=None) -> int:
     print(f"pairs corrected for the host's speed (wall per CPU second): median {statistics.median(fixed):.2f}x "
           f"({', '.join(f'{x:.2f}' for x in fixed)}); the pairs' CPU times, 1 against 2 workers: "
           f"{', '.join(f'{x:.2f}' for x in drift)} (1.00 = the same host speed)")
+    # what the command's own CPU (D: the merge, fusion, CSV, Dask's client and scheduler)
+    # costs on two cores beside its workers' (W): once up, two saturated cores take (W + D) / 2
+    # against the 1-worker run's W (its D runs on the other core): at most 2 W / (W + D)
+    d2 = statistics.median(x["driver_cpu_s"] for x in runs["dask2"])
+    w2 = statistics.median(x["cpu_s"] - x["driver_cpu_s"] for x in runs["dask2"])
+    print(f"the 2-worker command's own CPU D (all its threads) {d2:.2f} s, its workers' W {w2:.2f} s (medians): "
+          f"on two cores the processing gains at most 2 W / (W + D) = {2 * w2 / (w2 + d2):.2f}x, less the "
+          f"command's start and end, which do not run in parallel")
     print(f"serial measure / archive 2 workers: {med['serial'][0] / med['dask2'][0]:.2f}x whole command; "
           f"archive 1 worker / serial measure: {med['dask1'][0] / med['serial'][0]:.2f}x")
     if "pool2" in med and runs["pool2"]:

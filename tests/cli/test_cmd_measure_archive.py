@@ -98,10 +98,17 @@ def _wait_for_event(client, proc, what, since, timeout_s=120.0):
 
 
 def test_local_cluster_gives_the_rows_of_serial_measure(root):
-    """The command's own LocalCluster (two processes): the same file, byte for byte."""
+    """The command's own LocalCluster (two processes): the same file, byte for byte; the
+    command's own CPU reported, a part of what it and its workers used."""
+    import resource
+
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     proc = _run(root, "measure-archive", *SEA, *CHUNK, "--workers", "2", "--out", "out/local.csv", "--json")
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     assert proc.returncode == 0, proc.stderr
     assert (root / "out" / "local.csv").read_text() == _reference(root)
+    children_s = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    assert 0.0 < json.loads(proc.stdout)["cpu"]["command_s"] < children_s
     summary = json.loads(proc.stdout)["sessions"]["local"]
     assert summary["complete"] is True and summary["chunks"] == 4 and summary["chunks_run_again"] == []
     assert summary["methods"]["joint"]["n"] == 20 and summary["sensors"]["A1"]["n_solved"] == 20
