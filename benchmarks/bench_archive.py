@@ -27,16 +27,21 @@ seen; the correction assumes the same CPU time for the same work, and on 2026-11
 runs, which this host cannot tell from a real cost of the 1-worker run: read both
 figures), the 2-worker command's own CPU (``--json``'s ``cpu.command_s``: the merge, fusion,
 CSV and Dask in the command's process) against its workers' and the bound it sets on two
-cores, ``2 W / (W + D)``, serial measure against 2 archive workers, and whether every CSV is byte-identical to serial measure's (md5 of the file without its
-``# software`` provenance line, which names the commit: comparable between commits; the code must not change
-while the benchmark runs).
+cores, ``2 W / (W + D)``, serial measure against 2 archive workers, and whether every CSV
+is byte-identical to serial measure's (md5 of the file without its ``# software``
+provenance line, which names the commit: comparable between commits; the code must not
+change while the benchmark runs).
 
 The host is shared: the load average is printed before and after; take the medians.
 
 Bytecode: the commands run with a bytecode cache of shipstar's sources compiled once
 before the runs (``benchmarks/_procenv.py``), as an installed package has; with an
 editable install and ``PYTHONDONTWRITEBYTECODE`` set (the development host), every
-command would otherwise compile them again, ~0.3 s of serial start in each run.
+command would otherwise compile them again, ~0.3 s of serial start in each run.  The
+cache is a fresh directory, which every other module's bytecode is then looked up in too:
+an untimed serial ``measure`` and 2-worker archive run fill it before the timed repeats
+(until 2026-12-08 the first repeat's serial and 1-worker runs compiled NumPy, ERFA, Dask
+and distributed themselves, inflating the first pair).
 ``--no-bytecode-cache`` runs the commands with the environment as it is.
 
 Run: ``python benchmarks/bench_archive.py [--dir DIR] [--duration-s 90] [--chunk-s 30]
@@ -128,6 +133,15 @@ def main(argv=None) -> int:
     if bytecode is not None:
         precompile(bytecode)
     env = command_env(bytecode)
+    # untimed, once: the bytecode cache above holds shipstar's sources only, and with it every
+    # other module a command imports (NumPy, ERFA, Dask, distributed...) is compiled by the
+    # first command that imports it: ~1 s of the first 1-worker run's start and several
+    # seconds of the first serial run's, which made the first pair look 0.3-0.6x better
+    t0 = time.perf_counter()
+    for name, command, workers in (("warm-up-serial", "measure", 1), ("warm-up-archive", "measure-archive", 2)):
+        run(root, name, command, workers, a.chunk_s, env)
+    print(f"warm-up (untimed: serial measure and the 2-worker archive once) {time.perf_counter() - t0:.0f} s",
+          flush=True)
     print(f"session {a.duration_s:g} s, 2 sensors at 10 frames/s, chunks of {a.chunk_s:g} s; "
           f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f}", flush=True)
     runs = {"serial": [], "dask1": [], "dask2": [], "pool2": []}
@@ -166,7 +180,8 @@ def main(argv=None) -> int:
     # the same work (the same rows) took CPU times that differ by the host's speed of the
     # moment (a shared host: up to ~20 % between two back-to-back runs); each run's wall time
     # per second of its CPU removes that drift: the speed-up as if both ran on the same host
-    fixed = [(x1["wall_s"] / x1["cpu_s"]) / (x2["wall_s"] / x2["cpu_s"]) for x1, x2 in zip(runs["dask1"], runs["dask2"])]
+    fixed = [(x1["wall_s"] / x1["cpu_s"]) / (x2["wall_s"] / x2["cpu_s"])
+             for x1, x2 in zip(runs["dask1"], runs["dask2"])]
     drift = [x1["cpu_s"] / x2["cpu_s"] for x1, x2 in zip(runs["dask1"], runs["dask2"])]
     print(f"pairs corrected for the host's speed (wall per CPU second): median {statistics.median(fixed):.2f}x "
           f"({', '.join(f'{x:.2f}' for x in fixed)}); the pairs' CPU times, 1 against 2 workers: "
