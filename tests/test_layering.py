@@ -9,7 +9,7 @@ import shipstar
 
 #: The stages, bottom first.  A module of stage i may import stages 0..i only.
 ORDER = [
-    "units", "errors", "limits", "_atomic", "_digest", "_signals", "frames",
+    "units", "errors", "limits", "_atomic", "_arraycache", "_digest", "_signals", "frames",
     "sky", "_cfits", "_fitsio", "camera", "simulate", "extract",
     "attitude", "identify", "_codeid",
     "calibrate", "ship", "errormodel", "pipeline", "live",

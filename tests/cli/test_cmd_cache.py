@@ -138,3 +138,19 @@ def test_sorted_magnitudes_cache_is_the_catalog(cache, monkeypatch):
     np.testing.assert_array_equal(first, truth)
     np.testing.assert_array_equal(again, truth)
     assert str(path) in {str(f.path) for f in cache_files(cache)}
+    # a damaged file, or a zip where the .npy should be, is built again (a file starting
+    # like a zip was a traceback: zipfile.BadZipFile, or AttributeError on the NpzFile that
+    # np.load gives for a whole zip)
+    for damaged in (path.read_bytes()[:100], b"PK\x03\x04" + b"\0" * 200, _zip_bytes(np)):
+        path.write_bytes(damaged)
+        monkeypatch.setattr(_database, "_SORTED_MAG", [None, None])
+        np.testing.assert_array_equal(_database._sorted_magnitudes(), truth)
+        np.testing.assert_array_equal(np.load(path), truth)                # and written whole again
+
+
+def _zip_bytes(np):
+    import io
+
+    buf = io.BytesIO()
+    np.savez(buf, mag=np.arange(2000.0))
+    return buf.getvalue()

@@ -232,30 +232,22 @@ def _sorted_magnitudes() -> np.ndarray:
     the catalog source like the databases): a camera's default magnitude limit then costs
     a 1 ms read instead of the whole catalog's load (~50 ms) in every new process.
     """
-    from shipstar._atomic import atomic_path
+    from shipstar._arraycache import read_array, write_array
     from shipstar.sky.catalog import cache_dir
 
     key = _catalog_source()
     if _SORTED_MAG[0] == key:
         return _SORTED_MAG[1]
     path = cache_dir() / f"hipmag_v1_{sha256_hex(key.encode())[:20]}.npy"
-    mag = None
-    try:
-        mag = np.load(path, allow_pickle=False)
-        if mag.dtype != np.float64 or mag.ndim != 1 or mag.size < 1000:
-            mag = None
-    except (OSError, ValueError, EOFError):
+    mag = read_array(path)
+    if mag is not None and (mag.dtype != np.float64 or mag.ndim != 1 or mag.size < 1000):
         mag = None
     if mag is None:
         from shipstar.sky.catalog import load_hipparcos
 
         mag = np.sort(np.asarray(load_hipparcos().mag, float))
         mag = mag[np.isfinite(mag)]
-        try:
-            with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-                np.save(fh, mag)
-        except (OSError, ShipstarError):
-            pass
+        write_array(path, mag)
     mag.setflags(write=False)
     _SORTED_MAG[:] = [key, mag]
     return mag

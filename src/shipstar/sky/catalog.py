@@ -447,14 +447,14 @@ def _cache_file(prefix: str, key: str) -> pathlib.Path:
 
 def _read_npz(path: pathlib.Path, key: str) -> StarCatalog | None:
     """The catalog stored at ``path`` if it exists, is readable and has this key."""
-    import zipfile                      # here: `shipstar solve` reads no catalog
+    from shipstar._arraycache import read_arrays
 
+    z = read_arrays(path, ("key", *_FIELDS))
+    if z is None or str(z["key"]) != key:
+        return None
     try:
-        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:    # (closed if not a zip too)
-            if str(z["key"]) != key:
-                return None
-            return StarCatalog(**{name: z[name] for name in _FIELDS})
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, ShipstarError):
+        return StarCatalog(**{name: z[name] for name in _FIELDS})
+    except (ValueError, ShipstarError):
         return None
 
 
@@ -464,14 +464,9 @@ def _write_npz(path: pathlib.Path, key: str, catalog: StarCatalog) -> bool:
     Returns False, leaving nothing behind, if the directory cannot be written: the cache
     only saves time, the caller still has the catalog.
     """
-    from shipstar._atomic import atomic_path
+    from shipstar._arraycache import write_arrays
 
-    try:
-        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-            np.savez(fh, key=np.array(key), **{name: getattr(catalog, name) for name in _FIELDS})
-        return True
-    except (OSError, ShipstarError):
-        return False
+    return write_arrays(path, {"key": np.array(key), **{name: getattr(catalog, name) for name in _FIELDS}})
 
 
 def _cached(prefix: str, key: str, build) -> StarCatalog:

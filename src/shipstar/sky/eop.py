@@ -257,12 +257,10 @@ def _cache_path(raw: bytes):
 
 def _read_cached(cache, source: str) -> _Table | None:
     """The table kept at ``cache``, or None (missing, unreadable or not whole)."""
-    import zipfile
+    from shipstar._arraycache import read_arrays
 
-    try:
-        with open(cache, "rb") as fh, np.load(fh, allow_pickle=False) as z:     # (closed if not a zip too)
-            cols = {name: z[name] for name in _COLUMNS}
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+    cols = read_arrays(cache, _COLUMNS)
+    if cols is None:
         return None
     n = len(cols["mjd"])
     if n < 400 or any(c.shape != (n,) for c in cols.values()) or cols["measured"].dtype != bool:
@@ -274,16 +272,16 @@ def _write_cached(cache, table: _Table) -> None:
     """Keep ``table`` at ``cache`` (atomically) and only the :data:`_CACHE_KEEP_FILES` most
     recent such files; a directory that cannot be written only means the next process
     parses the file again."""
-    from shipstar._atomic import atomic_path
+    from shipstar._arraycache import write_arrays
 
+    if not write_arrays(cache, {name: getattr(table, name) for name in _COLUMNS}):
+        return
     try:
-        with atomic_path(cache) as tmp, open(tmp, "wb") as fh:
-            np.savez(fh, **{name: getattr(table, name) for name in _COLUMNS})
         kept = sorted(cache.parent.glob(f"{_CACHE_PREFIX}*.npz"), key=lambda p: p.stat().st_mtime, reverse=True)
         for old in kept[_CACHE_KEEP_FILES:]:
             if old != cache:
                 old.unlink()
-    except (OSError, ShipstarError):
+    except OSError:
         pass
 
 
