@@ -17,6 +17,7 @@ from shipstar.cli._common import (
     add_site_arguments,
     add_weather_arguments,
     check_output_file,
+    check_outputs_apart,
     emit_json,
 )
 
@@ -110,6 +111,7 @@ def run_at_sea(args) -> int:
     from shipstar.pipeline._recalibrate import at_sea_installation
 
     check_output_file(args.out, "--out")
+    check_outputs_apart(args, [("--out", args.out, None)])
     args.sensor_to_calibrate = args.sensor
     args.sensor = _order(args)                       # measure's helpers read (name, dir) pairs
     track, weather = _site_and_weather(args)

@@ -16,6 +16,7 @@ from shipstar.cli._common import (
     add_site_arguments,
     add_weather_arguments,
     check_output_file,
+    check_outputs_apart,
     emit_json,
     in_range,
 )
@@ -207,6 +208,7 @@ def run_install(args) -> int:
     from shipstar.camera import load_camera
 
     check_output_file(args.out, "--out")
+    check_outputs_apart(args, [("--out", args.out, None)])
     camera = load_camera(args.camera)
     apply_eop(args)
     frames, results = _process(args, camera)

@@ -17,6 +17,7 @@ from shipstar.cli._common import (
     add_site_arguments,
     add_weather_arguments,
     check_output_file,
+    check_outputs_apart,
     emit_json,
 )
 
@@ -209,8 +210,10 @@ def _check_arguments(args) -> None:
         raise ShipstarError("--in-space frames have no site, weather or refraction: drop --lat-deg/--lon-deg, "
                             "--pressure-hpa, --temperature-c and --refraction")
     check_output_file(args.out, "--out")
-    if not args.no_plot:
-        check_output_file(args.plot or _default_plot_path(args.out), "--plot")
+    plot = None if args.no_plot else args.plot or _default_plot_path(args.out)
+    if plot is not None:
+        check_output_file(plot, "--plot")
+    check_outputs_apart(args, [("--out", args.out, None), ("--plot", plot, None)])
 
 
 def _warn_unsupported(cal) -> None:

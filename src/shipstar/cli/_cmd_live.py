@@ -13,6 +13,7 @@ from shipstar.cli._common import (
     add_windowed_argument,
     add_weather_arguments,
     check_output_file,
+    check_outputs_apart,
     emit_json,
     float_in_range,
     int_in_range,
@@ -226,6 +227,7 @@ def _settings(args, report):
     out = None
     if args.out:
         out = check_output_file(args.out, "--out")
+        check_outputs_apart(args, [("--out", args.out, None)])
         partial = out.with_name(out.name + ".partial")
         if partial.exists():
             raise ShipstarError(f"{partial} is left from an earlier live run that did not stop cleanly: move or "

@@ -14,6 +14,7 @@ from shipstar.cli._common import (
     add_weather_arguments,
     check_output_dir,
     check_output_file,
+    check_outputs_apart,
     emit_json,
     float_in_range,
     int_in_range,
@@ -366,12 +367,21 @@ def _print_text(summary: dict, out: str) -> None:
 
 
 def _check_outputs(args) -> None:
-    """Every output path, before any processing."""
+    """Every output path, before any processing: writable, and apart from the inputs and
+    from each other."""
+    from shipstar.cli._ins_args import PLOT_FILES
+
     check_output_file(args.out, "--out")
     if args.monitor:
         check_output_file(args.monitor, "--monitor")
     if args.plots:
         check_output_dir(args.plots, "--plots", files=("attitude.png", "residuals.png"))
+    ins = bool(getattr(args, "ins", None))
+    check_outputs_apart(args, [("--out", args.out, None), ("--monitor", args.monitor, None),
+                               ("--plots", args.plots, ("attitude.png", "residuals.png")),
+                               ("--plots", args.plots if ins else None, PLOT_FILES),
+                               ("--ins-out", getattr(args, "ins_out", None), None),
+                               ("--ins-report", getattr(args, "ins_report", None), None)])
 
 
 def _eop(sources) -> dict:

@@ -200,7 +200,7 @@ def _header_record(args, image) -> dict:
 
 
 def _check_args(args) -> None:
-    from shipstar.cli._common import check_output_file
+    from shipstar.cli._common import check_output_file, check_outputs_apart
     from shipstar.errors import ShipstarError
 
     if not args.inputs:
@@ -216,8 +216,7 @@ def _check_args(args) -> None:
     for flag, path in (("--wcs-out", args.wcs_out), ("--wcs-header", args.wcs_header)):
         if path:
             check_output_file(path, flag)
-            if any(str(Path(path).resolve()) == str(Path(i).resolve()) for i in args.inputs):
-                raise ShipstarError(f"{flag} {path} is the input: refusing to overwrite it")
+    check_outputs_apart(args, [("--wcs-out", args.wcs_out, None), ("--wcs-header", args.wcs_header, None)])
 
 
 def _solve_one(args, item, prior):

@@ -14,7 +14,7 @@ from shipstar.errors import ShipstarError
 
 __all__ = ["finite_float", "angle_deg", "in_range", "latitude_deg", "longitude_deg", "deflection_arcsec", "fraction", "positive_float",
            "int_in_range", "float_in_range", "rng_seed", "add_site_arguments", "add_weather_arguments", "add_windowed_argument", "WINDOWED_HELP",
-           "add_refraction_arguments", "add_date_obs_is_argument", "REFRACTION_MODELS", "emit_json", "atomic_write_text", "check_output_file", "check_output_dir", "accuracy_warnings",
+           "add_refraction_arguments", "add_date_obs_is_argument", "REFRACTION_MODELS", "emit_json", "atomic_write_text", "check_output_file", "check_output_dir", "check_outputs_apart", "accuracy_warnings",
            "one_line"]
 
 
@@ -243,6 +243,90 @@ def check_output_dir(path, flag: str, files=()) -> Path:
     for name in files:
         check_output_file(p / name, flag)
     return p
+
+
+#: ``args`` attributes naming the files a command reads, and their flags (None: the
+#: positional inputs; a value: a path, a ``(name, path)`` pair or a list of either)
+_INPUT_FILES = (("track", "--track"), ("weather", "--weather"), ("install", "--install"), ("truth", "--truth"),
+                ("ins", "--ins"), ("ins_truth", "--ins-truth"), ("eop", "--eop"), ("camera", "--camera"),
+                ("inputs", None))
+#: ``args`` attributes naming the folders of frames a command reads, and their flags
+_INPUT_FOLDERS = (("sensor", "--sensor"), ("frames", "--frames"), ("session", "--session"))
+
+
+def _paths(value) -> list:
+    """The paths a flag's value names: a path, a ``(name, path)`` pair, or a list of them
+    (a value of another kind, a flag of the same name that is not a path, names none)."""
+    if isinstance(value, tuple) and len(value) == 2 and isinstance(value[0], str):
+        return _paths(value[1])
+    if isinstance(value, (list, tuple)):
+        return [p for v in value for p in _paths(v)]
+    return [value] if isinstance(value, (str, os.PathLike)) and str(value) != "" else []
+
+
+def check_outputs_apart(args, outputs) -> None:
+    """Refuse (ShipstarError, one line), before any work, an output that would overwrite
+    what the command reads or another of its outputs.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The command's arguments: its inputs are the existing files and frame folders of
+        the flags in :data:`_INPUT_FILES` and :data:`_INPUT_FOLDERS` it has.
+    outputs : sequence of (flag, path, names)
+        Each output: a file (``names`` None) or a folder the command writes the files
+        ``names`` in; a ``path`` of None is not given.
+
+    An output is refused when it is one of the input files, when it is a file with a
+    frame's name (``*.fits`` ...) in a folder of frames, when it is another output's file,
+    or when a file output is another output's folder.
+    """
+    from shipstar._fitsio import is_fits_name
+
+    def key(path) -> Path:
+        return Path(os.path.abspath(os.path.expanduser(os.fspath(path))))
+
+    files, folders = [], []                         # (flag, shown, key)
+    for flag, path, names in outputs:
+        if path is None or str(path) == "":
+            continue
+        if names is None:
+            files.append((flag, path, key(path)))
+        else:
+            folders.append((flag, path, key(path)))
+            files.extend((flag, Path(path) / name, key(Path(path) / name)) for name in names)
+    inputs = {}
+    for attr, flag in _INPUT_FILES:
+        for p in _paths(getattr(args, attr, None)):
+            if Path(p).is_file():
+                inputs.setdefault(key(p).resolve(), (flag, p))
+    frame_dirs = {}
+    for attr, flag in _INPUT_FOLDERS:
+        for p in _paths(getattr(args, attr, None)):
+            if Path(p).is_dir():
+                frame_dirs.setdefault(key(p).resolve(), (flag, p))
+    seen = {}
+    for flag, shown, k in files:
+        real = k.resolve()
+        if real in inputs:
+            in_flag, in_path = inputs[real]
+            what = "the" if in_flag is None else f"the {in_flag}"
+            what += " input" if str(in_path) == str(shown) else f" input {in_path}"
+            raise ShipstarError(f"{flag} {shown} is {what}: refusing to overwrite it")
+        if is_fits_name(k.name) and real.parent in frame_dirs:
+            in_flag, in_path = frame_dirs[real.parent]
+            if real.exists():
+                raise ShipstarError(f"{flag} {shown} is a frame of the {in_flag} folder {in_path}: refusing to "
+                                    f"overwrite it")
+            raise ShipstarError(f"{flag} {shown} would be a frame of the {in_flag} folder {in_path}: write it "
+                                f"elsewhere")
+        if real in seen and seen[real][0] != flag:
+            raise ShipstarError(f"{seen[real][0]} and {flag} are the same file {shown}: give each its own")
+        seen.setdefault(real, (flag, shown))
+    for flag, shown, k in folders:
+        real = k.resolve()
+        if real in seen:
+            raise ShipstarError(f"{seen[real][0]} {seen[real][1]} is the {flag} folder: give each its own")
 
 
 # ---------------------------------------------------------------------------------------
