@@ -153,3 +153,44 @@ def test_bad_config_file_is_one_line(tmp_path):
     ship = tmp_path / "cfg" / "ship.toml"
     ship.write_text(ship.read_text().replace("el_deg = 39.3734", "el_deg = 139.3734"))
     _assert_bad_input(_run(["--config", "cfg", "--quick"], tmp_path), "ship.toml", "el_deg must be within")
+
+
+def _tree(root):
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+@pytest.mark.parametrize("layout, fragments", [
+    # a user's session in OUT/sea beside an earlier demo's report: its frames were deleted
+    ({"report.html": "<html></html>", "results.json": "{}", "sea/A1/A1_00000.fits": "frame",
+      "sea/track.csv": "time_utc\n", "sea/session.toml": "x"},
+     ("sea holds A1, session.toml, which the demo did not write",)),
+    # a user's track in OUT/sea, no earlier demo: it was overwritten
+    ({"sea/track.csv": "time_utc,lat_deg,lon_deg\n"}, ("sea is not an earlier demo's (no results.json beside it)",)),
+    ({"results.json": "{}", "dock/notes.txt": "mine"}, ("dock holds notes.txt, which the demo did not write",)),
+    ({"sea": "a file"}, ("is in the way of the demo's sea/ folder",)),
+])
+def test_a_folder_holding_what_the_demo_did_not_write_is_refused_untouched(tmp_path, layout, fragments):
+    """A bad-input sweep found ``demo --out W`` deleting ``W/sea/`` (a simulated session's
+    frames) whenever W held a report.html, and overwriting ``W/sea/track.csv`` otherwise."""
+    out = tmp_path / "W"
+    for name, text in layout.items():
+        (out / name).parent.mkdir(parents=True, exist_ok=True)
+        (out / name).write_text(text)
+    before = _tree(out)
+    _assert_bad_input(_run(["--quick", "--out", "W"], tmp_path), *fragments)
+    assert _tree(out) == before
+
+
+def test_an_earlier_demos_files_are_removed_and_nothing_else(tmp_path):
+    from shipstar._demo import _check_out_folder, _clean_earlier_demo
+
+    out = tmp_path / "W"
+    demo = ["report.html", "results.json", "config-used/ship.toml", "sea/track.csv", "sea/weather.csv",
+            "sea/truth.csv", "dock/A1.installation.toml", "dock/A2.installation.toml"]
+    mine = ["notes.txt", "other/track.csv"]
+    for name in demo + mine:
+        (out / name).parent.mkdir(parents=True, exist_ok=True)
+        (out / name).write_text(name)
+    _check_out_folder(out)
+    _clean_earlier_demo(out)
+    assert sorted(_tree(out)) == mine

@@ -104,18 +104,54 @@ def _databases(spec, bar) -> dict:
 #: What a demo writes into its output folder: an earlier demo's are removed before a new
 #: run, so that no old ``config-used/`` or report is left beside the new results.
 DEMO_OUTPUTS = ("report.html", "results.json", "config-used", "dock", "sea")
+#: The files a demo writes in its ``sea/`` folder (the session's tables); in ``dock/`` it
+#: writes ``<sensor>.installation.toml``.
+DEMO_SEA_FILES = ("track.csv", "weather.csv", "truth.csv")
+
+
+def _demo_wrote(folder: str, path: Path) -> bool:
+    """A file of the demo's own in its ``sea/`` or ``dock/`` folder."""
+    if not path.is_file() or path.is_symlink():
+        return False
+    return path.name in DEMO_SEA_FILES if folder == "sea" else path.name.endswith(".installation.toml")
+
+
+def _check_out_folder(out: Path) -> None:
+    """Refuse (one line) an output folder whose ``sea/`` or ``dock/`` holds anything but an
+    earlier demo's own files: a user's session there (frames, its track) would be
+    overwritten or removed."""
+    earlier = (out / "results.json").is_file()
+    for folder in ("sea", "dock"):
+        d = out / folder
+        if not (d.exists() or d.is_symlink()):
+            continue
+        if d.is_symlink() or not d.is_dir():
+            raise ShipstarError(f"{d} is in the way of the demo's {folder}/ folder: give another --out")
+        others = sorted(p.name for p in d.iterdir() if not _demo_wrote(folder, p))
+        if others or not earlier:
+            what = (f"holds {', '.join(others[:3])}{' ...' if len(others) > 3 else ''}, which the demo did not "
+                    f"write" if others else "is not an earlier demo's (no results.json beside it)")
+            raise ShipstarError(f"{d} {what}: give an empty or new --out folder, or an earlier demo's")
 
 
 def _clean_earlier_demo(out: Path) -> None:
-    """Remove an earlier demo's outputs (:data:`DEMO_OUTPUTS`) from ``out``; nothing else
-    in the folder is touched."""
+    """Remove an earlier demo's outputs (:data:`DEMO_OUTPUTS`) from ``out``: in ``sea/``
+    and ``dock/`` only its own files (:func:`_check_out_folder` has refused any other);
+    nothing else in the folder is touched."""
     import shutil
 
     if not out.is_dir() or not any((out / n).exists() for n in ("results.json", "report.html", "config-used")):
         return
     for name in DEMO_OUTPUTS:
         p = out / name
-        if p.is_dir() and not p.is_symlink():
+        if name in ("sea", "dock"):
+            if p.is_dir() and not p.is_symlink():
+                for f in p.iterdir():
+                    if _demo_wrote(name, f):
+                        f.unlink()
+                if not any(p.iterdir()):
+                    p.rmdir()
+        elif p.is_dir() and not p.is_symlink():
             shutil.rmtree(p)
         elif p.exists() or p.is_symlink():
             p.unlink()
@@ -166,6 +202,7 @@ def run_demo(out_dir, *, quick: bool = False, plan: DemoPlan | None = None, conf
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise ShipstarError(f"output {out} exists and is not a directory")
+    _check_out_folder(out)
     _clean_earlier_demo(out)
     bar = Progress() if progress is None else progress
     timing = {}
