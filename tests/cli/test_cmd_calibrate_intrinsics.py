@@ -302,11 +302,16 @@ def test_ground_frames_need_a_site_or_in_space(tmp_path, truth, nominal):
     ("--out", "dir", "is a directory"),
     ("--out", "under-file", "is a file, not a directory"),
     ("--plot", "dir", "is a directory"),
+    # was matplotlib's traceback after the camera file had been written
+    ("--plot", "plot.xyz", "the plot's format is its extension, one of "),
+    ("--plot", "plot", "got none"),
 ])
 def test_bad_output_paths_are_refused_before_any_work(star_lists, nominal, tmp_path, flag, make, fragment):
     target = tmp_path / "target"
     if make == "dir":
         target.mkdir()
+    elif make.startswith("plot"):
+        target = tmp_path / make
     else:
         (tmp_path / "file").write_text("x")
         target = tmp_path / "file" / "cal.toml"

@@ -152,6 +152,23 @@ def _site_and_weather(args):
     return site, weather
 
 
+def _check_plot_format(path) -> None:
+    """Refuse a plot file name whose extension matplotlib cannot write (it chooses the
+    format by it): found only after the calibration, it was a traceback beside a camera
+    file already written."""
+    from pathlib import Path
+
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    from shipstar.errors import ShipstarError
+
+    formats = FigureCanvasBase.get_supported_filetypes()
+    suffix = Path(path).suffix.lower().lstrip(".")
+    if suffix not in formats:
+        raise ShipstarError(f"--plot {path}: the plot's format is its extension, one of "
+                            f"{', '.join(sorted(formats))}; got {('.' + suffix) if suffix else 'none'}")
+
+
 def _default_plot_path(out: str) -> str:
     from pathlib import Path
 
@@ -213,6 +230,7 @@ def _check_arguments(args) -> None:
     plot = None if args.no_plot else args.plot or _default_plot_path(args.out)
     if plot is not None:
         check_output_file(plot, "--plot")
+        _check_plot_format(plot)
     check_outputs_apart(args, [("--out", args.out, None), ("--plot", plot, None)])
 
 
