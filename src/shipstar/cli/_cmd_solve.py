@@ -39,7 +39,8 @@ is solved lost-in-space, each next one by tracking from the previous attitude
 
 --wcs-out FILE writes a FITS copy of the image with its WCS (TAN; TAN-SIP with the
 fitted radial term or the camera's distortion) and the quaternion; --wcs-header FILE
-writes the header alone (an empty FITS HDU, like astrometry.net's .wcs).
+writes the header alone as text, one 80-character card a line (astropy's
+Header.fromtextfile reads it; not a FITS file).
 
 --json prints one object per input: solved, reason ("" when solved), ra_deg, dec_deg,
 roll_deg, fov_deg, matched, rms_arcsec, p_false (the false-match probability bound, 1
@@ -107,7 +108,8 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--prior-error-deg", type=_prior_error, default=1.0,
                    help="--track: bound on the attitude change between inputs (deg, default 1)")
     p.add_argument("--wcs-out", metavar="FILE", help="write a FITS copy of the image with its WCS")
-    p.add_argument("--wcs-header", metavar="FILE", help="write the WCS as a header-only FITS file")
+    p.add_argument("--wcs-header", metavar="FILE",
+                   help="write the WCS header alone, as text: 80-character cards, one a line")
     p.add_argument("--date-obs-is", choices=("start", "mid"), default="start",
                    help="what a FITS image's DATE-OBS means (default start, the FITS standard)")
     p.add_argument("--trust-flags", action="store_true",
