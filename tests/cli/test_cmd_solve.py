@@ -291,6 +291,35 @@ def test_centroid_list(env, simulated, tmp_path, flux):
     assert (out["width_px"], out["height_px"]) == (512, 512)
 
 
+def test_centroid_columns_follow_the_header_and_stay_inside_the_image(tmp_path):
+    """A header's names choose the columns (read by position, ``y_px,x_px`` swapped the
+    axes and ``flux,x_px,y_px`` took the fluxes for x, without a word); a name that is not
+    a column, centroids outside the image, a UTF-8 byte-order mark: as below."""
+    from shipstar.cli._cmd_solve import _check_inside, read_centroids
+    from shipstar.errors import ShipstarError
+
+    rows = [(10.5, 20.25, 300.0), (40.0, 5.0, 100.0)]
+    for header, order in [("x_px,y_px,flux", (0, 1, 2)), ("y_px,x_px,flux", (1, 0, 2)),
+                          ("flux;X_PX;y_px", (2, 0, 1)), ("x y", (0, 1)), ("\ufeffy,x", (1, 0))]:
+        path = tmp_path / "c.csv"
+        path.write_text(header + "\n" + "".join(",".join(f"{r[k]:g}" for k in order) + "\n" for r in rows),
+                        encoding="utf-8")
+        xy, flux = read_centroids(path)
+        np.testing.assert_array_equal(xy, [[10.5, 20.25], [40.0, 5.0]])
+        assert (flux is None) == (len(order) == 2) and (flux is None or list(flux) == [300.0, 100.0])
+    for header in ("x_px,y_px,mag", "x_px,x_px", "ra,dec"):
+        path.write_text(header + "\n1,2" + ",3" * (header.count(",") - 1) + "\n")
+        with pytest.raises(ShipstarError, match="line 1: the header names .*expected x_px, y_px and optionally flux"):
+            read_centroids(path)
+    path.write_text("x_px,y_px\n1,2,3\n")
+    with pytest.raises(ShipstarError, match="line 2: expected 2 columns"):
+        read_centroids(path)
+    _check_inside(path, np.array([[-0.5, -0.5], [511.5, 255.5]]), (256, 512))      # the corners: inside
+    for xy in ([[512.0, 10.0]], [[10.0, 256.0]], [[-0.6, 3.0]]):
+        with pytest.raises(ShipstarError, match="1 centroid.* outside the 512x256 image"):
+            _check_inside(path, np.array(xy), (256, 512))
+
+
 def test_centroid_list_bad_line_is_one_line_error(env, tmp_path):
     path = tmp_path / "bad.csv"
     path.write_text("10,20\n30,forty\n")

@@ -30,8 +30,9 @@ the position angle of the image's up direction, from celestial north through eas
 
 --centroids: the inputs are text/CSV files of star centroids, one star a line:
 x_px,y_px[,flux] (0-based pixels, top-left pixel centre (0, 0); commas or blanks; lines
-starting with # and a header line are skipped), brightest first unless a flux column
-is given; --image-size-px WxH gives the image size.
+starting with # are skipped; a header line names the columns, x_px, y_px and flux in
+any order), brightest first unless a flux column is given; --image-size-px WxH gives
+the image size, and a centroid outside it is an error.
 
 --track: the inputs are a sequence (images or centroid files) of one camera: the first
 is solved lost-in-space, each next one by tracking from the previous attitude
@@ -141,14 +142,34 @@ def _summary(res) -> str:
             + _time_line(res))
 
 
+#: A centroid list's header names, and the column each one is (any order; case ignored)
+_CENTROID_COLUMNS = {"x_px": 0, "x": 0, "y_px": 1, "y": 1, "flux": 2}
+
+
+def _centroid_header(path, n: int, fields) -> list | None:
+    """The columns' order ``[x, y(, flux)]`` a header line names, or None when it is not
+    a header; ShipstarError when it names a column that is not one of those: read by
+    position, ``y_px,x_px`` swapped the axes and ``x_px,y_px,mag`` ordered the stars
+    faintest first, without a word."""
+    from shipstar.errors import ShipstarError
+
+    names = [f.strip().strip('"').lower() for f in fields]
+    cols = [_CENTROID_COLUMNS.get(name) for name in names]
+    if None in cols or sorted(cols) not in ([0, 1], [0, 1, 2]):
+        raise ShipstarError(f"{path} line {n}: the header names {', '.join(names)}: expected x_px, y_px and "
+                            f"optionally flux, in any order (or no header)")
+    return [cols.index(want) for want in range(len(cols))]
+
+
 def read_centroids(path):
-    """``(xy_px (N, 2), flux (N,) or None)`` of a centroid list file (see the epilog)."""
+    """``(xy_px (N, 2), flux (N,) or None)`` of a centroid list file (see the epilog):
+    columns by the header's names when there is one, else ``x_px, y_px[, flux]``."""
     import numpy as np
 
     from shipstar.errors import ShipstarError
 
-    rows = []
-    with open(path, encoding="utf-8", errors="replace") as fh:
+    rows, order = [], None
+    with open(path, encoding="utf-8-sig", errors="replace") as fh:
         for n, line in enumerate(fh, 1):
             text = line.split("#", 1)[0].strip()
             if not text:
@@ -157,20 +178,38 @@ def read_centroids(path):
             try:
                 values = [float(v) for v in fields]
             except ValueError:
-                if not rows and n <= 2:         # a header line (x_px,y_px,flux)
+                if not rows and order is None and n <= 2:       # a header line (x_px,y_px,flux)
+                    order = _centroid_header(path, n, fields)
                     continue
                 raise ShipstarError(f"{path} line {n}: expected numbers x_px,y_px[,flux], "
                                     f"got {text[:40]!r}") from None
-            if len(values) not in (2, 3) or (rows and len(values) != len(rows[0])):
-                raise ShipstarError(f"{path} line {n}: expected 2 or 3 columns (x_px,y_px[,flux]) "
-                                    f"on every line, got {len(values)}")
+            if len(values) not in (2, 3) or (rows and len(values) != len(rows[0])) \
+                    or (order is not None and len(values) != len(order)):
+                raise ShipstarError(f"{path} line {n}: expected {len(order) if order else '2 or 3'} columns "
+                                    f"(x_px,y_px[,flux]) on every line, got {len(values)}")
             if not all(np.isfinite(values)):
                 raise ShipstarError(f"{path} line {n}: non-finite value")
-            rows.append(values)
+            rows.append(values if order is None else [values[k] for k in order])
     if not rows:
         raise ShipstarError(f"{path}: no centroids (x_px,y_px[,flux] per line)")
     arr = np.asarray(rows, dtype=float)
     return arr[:, :2], (arr[:, 2] if arr.shape[1] == 3 else None)
+
+
+def _check_inside(path, xy_px, size_px) -> None:
+    """Refuse centroids outside the image (``size_px`` (height, width), as
+    ``--image-size-px WxH`` gives it): pixel centres at 0 .. width - 1, so a star's
+    centroid lies within -0.5 .. width - 0.5."""
+    import numpy as np
+
+    from shipstar.errors import ShipstarError
+
+    h, w = size_px
+    out = ~((xy_px[:, 0] >= -0.5) & (xy_px[:, 0] <= w - 0.5) & (xy_px[:, 1] >= -0.5) & (xy_px[:, 1] <= h - 0.5))
+    if out.any():
+        k = int(np.flatnonzero(out)[0])
+        raise ShipstarError(f"{path}: {int(out.sum())} centroid(s) outside the {w}x{h} image given by "
+                            f"--image-size-px, the first ({xy_px[k, 0]:g}, {xy_px[k, 1]:g}) px")
 
 
 def _header_record(args, image) -> dict:
@@ -231,6 +270,7 @@ def _solve_one(args, item, prior):
     fov = args.fov_deg if prior is None else None
     if args.centroids:
         xy, flux = read_centroids(item)
+        _check_inside(item, xy, args.image_size_px)
         return solve_centroids(xy, args.image_size_px, camera=camera, fov_deg=fov, flux=flux, **common)
     return solve_image(item, camera=camera, fov_deg=fov, threshold_sigma=args.threshold_sigma,
                        date_obs_is=args.date_obs_is, **common)
