@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 
 import numpy as np
 import pytest
@@ -317,3 +318,27 @@ def test_a_parsed_table_is_kept_by_its_content_and_read_back_whole(tmp_path, mon
         assert eop_mod._table(str(other)).ut1_tai_s[0] != parsed.ut1_tai_s[0]
     finally:
         eop_mod._table.cache_clear()
+
+
+def test_a_table_with_text_in_a_number_column_is_refused_and_not_kept(tmp_path, monkeypatch):
+    """A number column holding text (or a number that is not finite) is refused by a
+    one-line error naming the file, line and columns; nothing is kept or put in use."""
+    monkeypatch.setenv("SHIPSTAR_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.delenv(eop_mod.EOP_FILE_ENV, raising=False)
+    garbage = tmp_path / "garbage.bin"
+    garbage.write_bytes(b"garbage\x00\x01")
+    lines = altered_table_copy(tmp_path / "real.all", change_ut1=False).read_bytes().split(b"\n")
+    bad_mjd, bad_ut1 = list(lines), list(lines)
+    bad_mjd[1000] = bad_mjd[1000][:7] + b"  5xx.ab" + bad_mjd[1000][15:]
+    bad_ut1[5] = bad_ut1[5][:58] + b"     1e999" + bad_ut1[5][68:]
+    (tmp_path / "mjd.all").write_bytes(b"\n".join(bad_mjd))
+    (tmp_path / "ut1.all").write_bytes(b"\n".join(bad_ut1))
+    for name, where in [("garbage.bin", r"line 1, columns 8-15: '\\x00\\x01' is not a number"),
+                        ("mjd.all", "line 1001, columns 8-15: '5xx.ab' is not a number"),
+                        ("ut1.all", "line 6, columns 59-68: '1e999' is not a number")]:
+        for _ in range(2):                                              # refused again: not cached
+            with pytest.raises(ShipstarError, match=f"{name} is not a daily finals2000A table: {where}") as err:
+                eop_mod.set_eop_file(tmp_path / name)
+            assert "\n" not in str(err.value)
+    assert eop_mod.EOP_FILE_ENV not in os.environ
+    assert not list((tmp_path / "cache").glob("eop_v*_*.npz"))

@@ -171,15 +171,40 @@ class _Table:
     measured: np.ndarray               # both UT1 and polar motion measured on that row
 
 
-def _field(block: np.ndarray, first: int, last: int) -> np.ndarray:
-    """Fixed-width columns ``first..last`` (1-based, inclusive) as floats, NaN where blank."""
+def _field_text(block: np.ndarray, first: int, last: int) -> np.ndarray:
+    """Fixed-width columns ``first..last`` (1-based, inclusive) of each row, stripped."""
     width = last - first + 1
-    text = np.ascontiguousarray(block[:, first - 1:last]).view(f"S{width}").ravel()
-    text = np.char.strip(text)
+    return np.char.strip(np.ascontiguousarray(block[:, first - 1:last]).view(f"S{width}").ravel())
+
+
+def _field(block: np.ndarray, first: int, last: int) -> np.ndarray:
+    """Fixed-width columns ``first..last`` (1-based, inclusive) as floats, NaN where blank.
+
+    Raises ``ValueError`` if an entry that is not blank is not a finite number."""
+    text = _field_text(block, first, last)
     out = np.full(text.shape, np.nan)
     ok = text != b""
     out[ok] = text[ok].astype(float)
+    if not np.isfinite(out[ok]).all():
+        raise ValueError("not finite")
     return out
+
+
+def _not_a_number(path: str, raw: bytes, block: np.ndarray, first: int, last: int) -> str:
+    """The one-line refusal of table ``path`` (content ``raw``) naming the line and the text
+    of the first entry of columns ``first..last`` of ``block`` that is not a finite number."""
+    text = _field_text(block, first, last)
+    for row in np.flatnonzero(text != b""):
+        try:
+            if np.isfinite(text[row:row + 1].astype(float)).all():
+                continue
+        except ValueError:
+            pass
+        line = [n for n, ln in enumerate(raw.split(b"\n"), 1) if ln.strip()][row]
+        entry = text[row].decode("ascii", errors="replace")
+        return (f"IERS table {path} is not a daily finals2000A table: line {line}, "
+                f"columns {first}-{last}: {entry!r} is not a number")
+    return f"IERS table {path} is not a daily finals2000A table"
 
 
 def _flag(block: np.ndarray, col: int) -> np.ndarray:
@@ -200,12 +225,19 @@ def _parse_finals(path: str, raw: bytes | None = None) -> _Table:
         raw = _read_table_file(path)
     lines = [ln.ljust(187)[:187] for ln in raw.split(b"\n") if ln.strip()]
     block = np.frombuffer(b"".join(lines), dtype="S1").reshape(len(lines), 187)
-    mjd = _field(block, 8, 15)
+
+    def field(first: int, last: int) -> np.ndarray:
+        try:
+            return _field(block, first, last)
+        except ValueError:
+            raise ShipstarError(_not_a_number(path, raw, block, first, last)) from None
+
+    mjd = field(8, 15)
     pm_flag, ut1_flag = _flag(block, 17), _flag(block, 58)
-    ut1_a, ut1_err = _field(block, 59, 68), _field(block, 69, 78)
-    xp_a, xp_err = _field(block, 19, 27), _field(block, 28, 36)
-    yp_a, yp_err = _field(block, 38, 46), _field(block, 47, 55)
-    xp_b, yp_b, ut1_b = _field(block, 135, 144), _field(block, 145, 154), _field(block, 155, 165)
+    ut1_a, ut1_err = field(59, 68), field(69, 78)
+    xp_a, xp_err = field(19, 27), field(28, 36)
+    yp_a, yp_err = field(38, 46), field(47, 55)
+    xp_b, yp_b, ut1_b = field(135, 144), field(145, 154), field(155, 165)
     keep = np.isfinite(ut1_a) & (pm_flag != b" ") & np.isfinite(xp_a) & np.isfinite(yp_a)
     if keep.sum() < 400 or np.any(np.diff(mjd[keep]) != 1.0):
         raise ShipstarError(f"IERS table {path} is not a daily finals2000A table")
