@@ -77,6 +77,15 @@ def test_bad_input_is_one_line_exit_2(tmp_path, args, needle):
     assert needle in out.stderr
 
 
+@pytest.mark.parametrize("seed", ["-1", str(2**63), "1.5"])
+def test_bad_rng_seed_is_refused_before_the_out_dir_is_made(tmp_path, seed):
+    out = run("--rng-seed", seed, "--mc-samples", "200", "--out", str(tmp_path / "em"))
+    assert out.returncode == 2
+    assert "Traceback" not in out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1 and "--rng-seed" in out.stderr
+    assert not (tmp_path / "em").exists()
+
+
 def test_help_has_example():
     out = run("--help")
     assert out.returncode == 0 and "shipstar error-model --sweep seed" in out.stdout

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from shipstar.cli._common import angle_deg, atomic_write_text, emit_json, finite_float
+from shipstar.cli._common import angle_deg, atomic_write_text, emit_json, finite_float, rng_seed
 from shipstar.errors import ShipstarError
 
 EPILOG = """\
@@ -57,7 +57,8 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--lock-margin-deg", type=angle_deg, default=1.0,
                    help="flag points with ship pitch this close to +-90 deg (default 1)")
     p.add_argument("--mc-samples", type=int, default=20000, help="Monte Carlo samples (default 20000)")
-    p.add_argument("--rng-seed", type=int, default=1, help="Monte Carlo random seed (default 1)")
+    p.add_argument("--rng-seed", type=rng_seed, default=1, metavar="N",
+                   help="Monte Carlo random seed, 0..2**63-1 (default 1)")
     _register_layout(p)
     p.add_argument("--out", required=True, metavar="DIR", help="directory for the JSON, CSV and PNG files")
     p.add_argument("--progress", action="store_true", help="progress bar on stderr (default: only on a terminal)")
