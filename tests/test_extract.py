@@ -370,6 +370,48 @@ def test_unreadable_files_raise_one_line_errors(tmp_path):
         assert "\n" not in str(info.value), name
 
 
+def huge_image_header(path, width=20000, height=20000):
+    """A PNG or JPEG file (by ``path``'s suffix) of a few bytes whose header says ``width`` x
+    ``height`` 8-bit grey pixels (no pixel data): what Pillow's size check reads."""
+    import struct
+    import zlib
+
+    if path.suffix == ".png":
+        def chunk(kind, data):
+            return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+        raw = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+               + chunk(b"IEND", b""))
+    else:
+        sof = b"\xff\xc0" + struct.pack(">HBHHB", 11, 8, height, width, 1) + b"\x01\x11\x00"
+        sos = b"\xff\xda" + struct.pack(">HB", 8, 1) + b"\x01\x00\x00\x3f\x00"
+        raw = b"\xff\xd8" + sof + sos + b"\xff\xd9"
+    path.write_bytes(raw)
+    return path
+
+
+def test_images_over_pillows_size_limit_are_refused_in_one_line(tmp_path, monkeypatch):
+    """Over twice ``PIL.Image.MAX_IMAGE_PIXELS`` (Pillow's decompression-bomb limit) an image
+    is refused with its pixel count and the limit; between once and twice, where Pillow
+    warns of a possible bomb, it is read as any other, with no warning (pytest turns
+    warnings into errors)."""
+    from PIL import Image
+
+    for name in ("big.png", "big.jpg"):
+        with pytest.raises(ShipstarError, match=r"too large: 400000000 pixels, over the limit of 178956970 ") as info:
+            read_image(huge_image_header(tmp_path / name))
+        assert "\n" not in str(info.value) and name in str(info.value)
+    monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", 1000)
+    image = np.arange(30 * 40, dtype=np.uint16).reshape(30, 40)                  # 1200 px: Pillow warns
+    for ext in ("png", "tif"):
+        Image.fromarray(image).save(tmp_path / f"warned.{ext}")
+        Image.fromarray(np.zeros((50, 41), np.uint16)).save(tmp_path / f"bomb.{ext}")     # 2050 px > 2000
+        np.testing.assert_array_equal(read_image(tmp_path / f"warned.{ext}"), image)
+        np.testing.assert_array_equal(read_image_any(tmp_path / f"warned.{ext}", writable=False), image)
+        with pytest.raises(ShipstarError, match=r"too large: 2050 pixels, over the limit of 2000 "):
+            read_image(tmp_path / f"bomb.{ext}")
+
+
 def _pillow_luminance(path) -> np.ndarray:
     """A JPEG's luminance as Pillow decodes it (the Y plane of a colour one): the reference."""
     from PIL import Image

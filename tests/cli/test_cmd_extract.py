@@ -108,6 +108,19 @@ def test_bad_input_exits_2_with_one_line(tmp_path):
     _assert_bad_input(_run(["saturated.npy", "--threshold-sigma", "0.5"], tmp_path), "threshold_sigma")
 
 
+def test_an_image_over_pillows_size_limit_exits_2_with_one_line(tmp_path):
+    import struct
+    import zlib
+
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    ihdr = struct.pack(">IIBBBBB", 20000, 20000, 8, 0, 0, 0, 0)                  # 8-bit grey, no pixels
+    (tmp_path / "big.png").write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IEND", b""))
+    _assert_bad_input(_run(["big.png"], tmp_path),
+                      "big.png is too large: 400000000 pixels, over the limit of 178956970")
+
+
 def test_smeared_frame_with_a_smear_hint(tmp_path):
     """Streaks (the ship turning during the exposure) are centred at mid-exposure."""
     from astropy.io import fits

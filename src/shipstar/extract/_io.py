@@ -9,6 +9,9 @@ colour JPEG's stored luminance is decoded directly, the same pixels but for roun
 An 8-bit greyscale or YCbCr JPEG is decoded by libjpeg-turbo through simplejpeg (its
 luminance alone, the same pixels as Pillow's, which loads in ~30 ms against ~1 ms);
 Pillow reads every other JPEG (CMYK, 12-bit, multi-picture, corrupt: its errors).
+An image Pillow would read is refused (one-line error) over twice Pillow's decompression-bomb
+size ``PIL.Image.MAX_IMAGE_PIXELS`` (179 Mpx by default); below that it is read without
+Pillow's bomb warning (which it gives from 89 Mpx).
 """
 
 from __future__ import annotations
@@ -59,7 +62,7 @@ def _read_fits(path: Path) -> np.ndarray:
 
 
 #: Pillow's decompression-bomb size (``PIL.Image.MAX_IMAGE_PIXELS``): a larger JPEG goes
-#: to Pillow, which warns or refuses it as it does every image
+#: to Pillow, which refuses it over twice that size as it does every image
 _JPEG_DIRECT_MAX_PIXELS = 89_478_485
 
 
@@ -107,7 +110,21 @@ def _read_jpeg_direct(path: Path) -> np.ndarray | None:
     return arr.reshape(h, w) if arr.size == h * w and arr.dtype == np.uint8 else None
 
 
+def _too_large(path: Path, kind: str, exc: Exception) -> str:
+    """The one-line refusal of an image over Pillow's decompression-bomb limit (twice
+    ``PIL.Image.MAX_IMAGE_PIXELS``), with its pixel count and the limit from Pillow's ``exc``."""
+    import re
+
+    found = re.search(r"\((\d+) pixels\) exceeds limit of (\d+) pixels", str(exc))
+    if found is None:
+        return f"{kind} file {path} is too large to read: {' '.join(str(exc).split())}"
+    return (f"{kind} file {path} is too large: {int(found[1])} pixels, over the limit of {int(found[2])} "
+            "(Pillow's decompression-bomb limit)")
+
+
 def _read_pillow(path: Path, kind: str, writable: bool) -> np.ndarray:
+    import warnings
+
     from PIL import Image, UnidentifiedImageError
 
     # np.asarray shares the bytes Pillow exports (read only); np.array copies them, one
@@ -116,20 +133,25 @@ def _read_pillow(path: Path, kind: str, writable: bool) -> np.ndarray:
     as_array = np.array if writable else np.asarray
 
     try:
-        with Image.open(path) as im:
-            if kind == "JPEG" and im.mode == "RGB":
-                # a colour JPEG stores the 601 luminance (Y of YCbCr): decoded alone (no
-                # chroma, no RGB), the same pixels as convert("L") but for rounding
-                im.draft("L", None)
-            im.load()
-            if getattr(im, "n_frames", 1) > 1:
-                raise ShipstarError(f"{path} holds {im.n_frames} frames; give one frame per file")
-            if im.mode in ("L", "I;16", "I;16B", "I;16L", "I", "F"):
-                arr = as_array(im)
-            else:
-                arr = as_array(im.convert("L"))
+        with warnings.catch_warnings():
+            # a local frame under Pillow's hard limit is read whole, whatever its size
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(path) as im:
+                if kind == "JPEG" and im.mode == "RGB":
+                    # a colour JPEG stores the 601 luminance (Y of YCbCr): decoded alone (no
+                    # chroma, no RGB), the same pixels as convert("L") but for rounding
+                    im.draft("L", None)
+                im.load()
+                if getattr(im, "n_frames", 1) > 1:
+                    raise ShipstarError(f"{path} holds {im.n_frames} frames; give one frame per file")
+                if im.mode in ("L", "I;16", "I;16B", "I;16L", "I", "F"):
+                    arr = as_array(im)
+                else:
+                    arr = as_array(im.convert("L"))
     except ShipstarError:
         raise
+    except Image.DecompressionBombError as exc:
+        raise ShipstarError(_too_large(path, kind, exc)) from None
     except (OSError, ValueError, UnidentifiedImageError, SyntaxError) as exc:
         raise ShipstarError(f"corrupt or unreadable {kind} file {path}: {exc}") from None
     return arr
