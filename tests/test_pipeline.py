@@ -117,6 +117,9 @@ def test_track_interpolates_linearly_and_refuses_extrapolation(tmp_path):
         tr.site(*utc_jd_from_iso("2013-03-15T12:16:11.1"))
     fixed = Track.fixed(31.9, 120.3)
     assert fixed.site(0.0, 2456367.0).lat_rad == pytest.approx(31.9 * DEG2RAD)
+    # a spreadsheet's UTF-8 byte-order mark: the same track (was "missing column 'time_utc'")
+    p.write_bytes(b"\xef\xbb\xbf" + p.read_bytes())
+    assert Track.read_csv(p).site(*utc_jd_from_iso("2013-03-15T12:16:02.5")).lat_rad == site.lat_rad
 
 
 @pytest.mark.parametrize("text, message", [

@@ -60,7 +60,7 @@ def read_csv_table(path, required: tuple, optional: tuple = (), what: str = "tab
 
     path = Path(path)
     try:
-        with open(path, newline="", encoding="utf-8") as fh:
+        with open(path, newline="", encoding="utf-8-sig") as fh:
             rows = list(csv.DictReader(line for line in fh if not line.lstrip().startswith("#")))
     except FileNotFoundError:
         raise ShipstarError(f"no such file: {path}") from None
