@@ -67,14 +67,19 @@ def test_headline_printed_beside_seed_value(tmp_path):
     (["--sensor-errors-arcsec", "-1", "3", "100"], "errors must be"),
     (["--layout", "--el-range-deg", "70", "20"], "elevation range"),
     (["--layout", "--n-stars", "1"], "n_stars"),
-    (["--sweep", "E0", "--points", "1"], "n_points"),
+    (["--sweep", "E0", "--points", "1"], "--points must be at least 2, got 1"),
+    # accepted before, and a budget computed (found by a bad-input sweep)
+    (["--sensor-angles-deg", "235", "95", "90"], "--sensor-angles-deg: the elevation ES must be within [-90, 90]"),
+    (["--install-angles-deg", "0", "-95", "0"], "--install-angles-deg: the elevation E0 must be within [-90, 90]"),
 ])
 def test_bad_input_is_one_line_exit_2(tmp_path, args, needle):
-    out = run(*args, "--mc-samples", "200", "--out", str(tmp_path))
+    out = run(*args, "--mc-samples", "200", "--out", str(tmp_path / "em"))
     assert out.returncode == 2
     assert "Traceback" not in out.stderr
     assert len(out.stderr.strip().splitlines()) == 1
     assert needle in out.stderr
+    if "--points" in args or "-angles-deg" in args[0]:
+        assert not (tmp_path / "em").exists()                  # refused before the directory is made
 
 
 @pytest.mark.parametrize("seed", ["-1", str(2**63), "1.5"])

@@ -211,7 +211,15 @@ MAX_MC_SAMPLES = 1_000_000
 
 
 def _check_limits(args) -> None:
-    """Refuse sizes whose memory would not fit a shared machine (killed with no message)."""
+    """Refuse, before the output directory is made, elevations past the zenith and sizes
+    whose memory would not fit a shared machine (killed with no message)."""
+    for flag, names, angles in (("--sensor-angles-deg", ("AS", "ES", "GS"), args.sensor_angles_deg),
+                                ("--install-angles-deg", ("A0", "E0", "G0"), args.install_angles_deg)):
+        if not -90.0 <= angles[1] <= 90.0:
+            raise ShipstarError(f"{flag}: the elevation {names[1]} must be within [-90, 90] deg, got {angles[1]:g}")
+    if args.points < 2 or args.mc_samples < 1:
+        flag, value = ("--points", args.points) if args.points < 2 else ("--mc-samples", args.mc_samples)
+        raise ShipstarError(f"{flag} must be at least {2 if flag == '--points' else 1}, got {value}")
     if args.points > MAX_POINTS:
         raise ShipstarError(f"--points {args.points} is above the limit of {MAX_POINTS} (a sweep takes ~20 kB a "
                             f"point: {args.points} would need ~{args.points * 20e3 / 1e9:.1f} GB); the curves are "
