@@ -364,3 +364,22 @@ def test_csv_tail_weather_and_a_bad_header(tmp_path):
         with pytest.raises(ShipstarError) as e:
             tail.poll()
         assert str(e.value) == f"{bad}: missing column 'temperature_c' (need time_utc, pressure_hpa, temperature_c)"
+
+
+def test_csv_tail_of_a_binary_file_is_one_error_and_a_byte_order_mark_is_skipped(tmp_path):
+    """A binary file given as the table: one error, as a bad header (was one "not UTF-8
+    text" line each, 595 lines before the command's error; found by a bad-input sweep)."""
+    binary = tmp_path / "random.bin"
+    binary.write_bytes(bytes(range(128, 256)) * 40 + b"\n" + bytes(range(200, 256)) * 30 + b"\n")
+    errors = []
+    tail = CsvTail(binary, LiveWeather(), on_error=errors.append)
+    for _ in range(2):
+        with pytest.raises(ShipstarError, match=r"random.bin line 1: not UTF-8 text, so not a CSV table \(need a "
+                                                r"header line time_utc, pressure_hpa, temperature_c\)"):
+            tail.poll()
+    assert errors == []
+    path = tmp_path / "weather.csv"
+    path.write_bytes(b"\xef\xbb\xbftime_utc,pressure_hpa,temperature_c\n2013-03-15T12:16:00Z,1021.695,11.11\n")
+    weather = LiveWeather()
+    assert CsvTail(path, weather, on_error=errors.append).poll() == 1 and errors == []
+    assert weather.weather(*T0).pressure_hpa == 1021.7

@@ -721,8 +721,14 @@ class CsvTail:
         try:
             text = raw.decode("utf-8").rstrip("\r")
         except UnicodeDecodeError:
+            if self._header is None:                # not a CSV table: one error, not one a line
+                self._bad_header = (f"{where}: not UTF-8 text, so not a CSV table (need a header line time_utc, "
+                                    f"{', '.join(self._required)})")
+                raise ShipstarError(self._bad_header) from None
             self._error(f"{where}: not UTF-8 text")
             return 0
+        if self._header is None:
+            text = text.lstrip("\ufeff")                # a spreadsheet's byte-order mark
         if not text.strip() or text.lstrip().startswith("#"):
             return 0
         try:
