@@ -303,3 +303,16 @@ def test_nav_udp_port_in_use_is_one_line(session):
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
     assert "in use" in proc.stderr and "Traceback" not in proc.stderr
     assert not (Path(session) / "x.csv.partial").exists()
+
+
+def test_a_stop_before_any_frame_says_nothing_was_written(session):
+    """No frame before the stop: no file, and a line that says so (the summary's "out":
+    null alone, with exit 0, looked like a run that wrote; found by a bad-input sweep)."""
+    (Path(session) / "empty").mkdir(exist_ok=True)
+    live = Live(session, ["--sensor", "A1=empty", "--install", "A1.toml", "--track", "sea/track.csv",
+                          "--weather", "sea/weather.csv", "--out", "none.csv", "--json"])
+    live.wait_line("watching A1=empty")
+    code, out = live.stop(signal.SIGINT)
+    assert code == 0 and json.loads(out)["out"] is None
+    assert "shipstar live: no frame arrived before the stop (SIGINT): nothing written to none.csv" in live.lines
+    assert not list(Path(session).glob("none.csv*"))

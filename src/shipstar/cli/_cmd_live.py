@@ -311,6 +311,9 @@ def run(args) -> int:
             settings.nav.stop()
         if settings.ins is not None:
             settings.ins.stop()
+    if args.out and outcome.summary.get("out") is None:
+        report(f"no frame arrived before the stop ({outcome.summary.get('stopped') or 'end'}): "
+               f"nothing written to {args.out}")
     if args.json:
         emit_json(outcome.summary)
     else:
