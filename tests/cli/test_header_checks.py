@@ -144,6 +144,52 @@ def test_measure_refuses_frames_whose_sensor_header_names_another_sensor(env, do
              "SENSOR = 'A2'", "--sensor A1=dock/A2")
 
 
+def test_install_refuses_frames_of_another_camera_whose_sensor_card_matches(env, dock):
+    """`--sensor A1 --camera A2` on A1's frames (SENSOR = INSTRUME = 'A1'): the SENSOR card
+    matched the sensor's name, INSTRUME was never compared with the camera, and the
+    installation came out 0.31 deg off in elevation (39.686 against 39.373 deg) with exit 0."""
+    line = _refused(_run(env, dock, *_install(camera="A2"), "--out", "cam.install.toml"),
+                    "A1_00000.fits", "header INSTRUME = 'A1'", "the camera is 'A2'", "--sensor A1 (camera A2)",
+                    "--trust-flags")
+    assert "header SENSOR" not in line                      # SENSOR = 'A1' is the sensor given
+    assert not (dock / "cam.install.toml").exists()
+    proc = _run(env, dock, *_install(camera="A2"), "--trust-flags", "--out", "cam.install.toml", "--json")
+    assert proc.returncode == 0, proc.stderr
+    (o,) = json.loads(proc.stdout)["header_overrides"]
+    assert o["key"] == "INSTRUME" and o["n_frames"] == 4 and "the camera is 'A2'" in o["first"]
+    # what the check protects against: A2's model on A1's frames moves the elevation by 0.3 deg
+    el_deg = math.degrees(load_installation(dock / "cam.install.toml").el_rad)
+    assert abs(el_deg - 39.3734) > 0.2
+
+
+def test_install_refuses_frames_of_another_sensor_whose_camera_card_matches(env, dock):
+    """`--sensor A2 --camera A1` on A1's frames wrote an A2 installation from A1's frames (exit 0)."""
+    _refused(_run(env, dock, *_install(sensor="A2"), "--out", "a2.install.toml"),
+             "header SENSOR = 'A1'", "the sensor is 'A2'", "--sensor A2 (camera A1)", "--trust-flags")
+    assert not (dock / "a2.install.toml").exists()
+
+
+def test_measure_refuses_an_installation_of_another_camera_than_the_frames(env, dock):
+    """An installation file naming camera A2 for sensor A1's frames: measure used A2's model
+    on them (at sea: pitch 0.979 against a true 1.288 deg) with exit 0; refused, and with
+    --trust-flags run and recorded."""
+    proc = _run(env, dock, *_install(), "--out", "A1c.install.toml")
+    assert proc.returncode == 0, proc.stderr
+    path = dock / "A1c.install.toml"
+    text = path.read_text()
+    assert 'camera = "A1"' in text
+    path.write_text(text.replace('camera = "A1"', 'camera = "A2"'))
+    common = ["measure", "--sensor", "A1=dock/A1", "--install", "A1c.install.toml", "--lat-deg", "31.9",
+              "--lon-deg", "120.3", "--pressure-hpa", "1021.7", "--temperature-c", "11.1", "--workers", "1"]
+    _refused(_run(env, dock, *common, "--out", "cam.csv"),
+             "header INSTRUME = 'A1'", "the camera is 'A2'", "--sensor A1=dock/A1 (camera A2)", "--trust-flags")
+    assert not (dock / "cam.csv").exists()
+    proc = _run(env, dock, *common, "--trust-flags", "--out", "cam_trusted.csv", "--json")
+    assert proc.returncode in (0, 1), proc.stderr
+    (o,) = json.loads(proc.stdout)["header_overrides"]
+    assert (o["sensor"], o["key"], o["n_frames"]) == ("A1", "INSTRUME", 4)
+
+
 # ------------------------------------------------------------------ solve
 
 @pytest.fixture(scope="module")

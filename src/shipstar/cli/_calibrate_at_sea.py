@@ -120,7 +120,8 @@ def run_at_sea(args) -> int:
     for config, (name, directory) in zip(configs, args.sensor):
         check = header_check(args, names=(name, config.camera.name), camera=config.camera, track=track,
                              weather=weather, given_name=f"--frames {name}={directory} (camera {config.camera.name})",
-                             position_flags=not args.track, weather_flags=not args.weather, sensor=name)
+                             position_flags=not args.track, weather_flags=not args.weather, sensor=name,
+                             known_cameras=[c.camera.name for c in configs])
         frames.append(scan_frames(directory, date_obs_is=args.date_obs_is, check=check))
     options = PipelineOptions(refraction_model=args.refraction, refraction=args.refraction_mode)
     result = process_session(configs, frames, track, weather, options, reference=args.sensor[0][0])

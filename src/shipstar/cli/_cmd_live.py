@@ -249,6 +249,7 @@ def _settings(args, report):
                         header_checks=tuple(
                             header_check(args, names=(c.name, c.camera.name), camera=c.camera, track=track,
                                          weather=weather, sensor=c.name,
+                                         known_cameras=[k.camera.name for k in configs],
                                          given_name=f"--sensor {c.name}={d} (camera {c.camera.name})",
                                          position_flags=not (args.track or args.nav_udp),
                                          weather_flags=args.pressure_hpa is not None and not args.weather)

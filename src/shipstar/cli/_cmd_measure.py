@@ -276,7 +276,8 @@ def _sources(args, configs, track=None, weather=None, header_reader=None, progre
         check = header_check(args, names=(name, config.camera.name), camera=config.camera, track=track,
                              weather=weather, given_name=f"--sensor {name}={directory} (camera {config.camera.name})",
                              position_flags=not getattr(args, "track", None),
-                             weather_flags=not getattr(args, "weather", None), sensor=name)
+                             weather_flags=not getattr(args, "weather", None), sensor=name,
+                             known_cameras=[c.camera.name for c in configs])
         args.header_checks.append(check)
         shown = None if progress is None else (lambda done, total, name=name: progress(f"index {name}", done, total))
         sources.append(FitsDirectorySource(name, directory, date_obs_is=args.date_obs_is, check=check,

@@ -22,13 +22,14 @@ def add_trust_flags_argument(parser) -> None:
 
 
 def header_check(args, *, names=(), given_name: str = "", camera=None, track=None, weather=None,
-                 position_flags: bool = False, weather_flags: bool = False, sensor: str = ""):
+                 position_flags: bool = False, weather_flags: bool = False, sensor: str = "", known_cameras=()):
     """A :class:`HeaderCheck` with the command's ``--trust-flags``."""
     from shipstar.pipeline._header_check import HeaderCheck
 
     return HeaderCheck(names=names, given_name=given_name, camera=camera, track=track, weather=weather,
                        position_flags=position_flags, weather_flags=weather_flags,
-                       trust_flags=bool(getattr(args, "trust_flags", False)), sensor=sensor)
+                       trust_flags=bool(getattr(args, "trust_flags", False)), sensor=sensor,
+                       known_cameras=known_cameras)
 
 
 def override_record(checks) -> dict:

@@ -21,7 +21,7 @@ from shipstar.errors import ShipstarError
 from shipstar.units import DAY_S
 
 __all__ = ["Frame", "scan_frames", "frame_paths", "read_header_block", "header_blocks", "read_fits_frame",
-           "check_sensor_name", "time_sources", "read_ahead", "FITS_SUFFIXES", "INDEX_BLOCK_MIN_FILES",
+           "time_sources", "read_ahead", "FITS_SUFFIXES", "INDEX_BLOCK_MIN_FILES",
            "INDEX_BLOCKS_PER_WORKER", "INDEX_READ_AHEAD_FILES", "READ_AHEAD_FRAMES"]
 
 
@@ -118,15 +118,6 @@ def read_fits_frame(path, *, date_obs_is: str = "start") -> tuple[np.ndarray, tu
 
     image, info = read_fits(path, date_obs_is=date_obs_is)
     return image, info.mid_utc_jd()
-
-
-def check_sensor_name(frames, name: str, camera_name: str, where) -> None:
-    """ShipstarError when a frame's file names a sensor that is neither ``name`` nor the
-    camera model ``camera_name`` (simulated frames record the camera's name)."""
-    other = sorted({f.sensor for f in frames if f.sensor and f.sensor not in (name, camera_name)})
-    if other:
-        raise ShipstarError(f"frames in {where} are from sensor {other[0]!r} (FITS SENSOR/INSTRUME), "
-                            f"not {name!r}")
 
 
 def in_name_order(paths) -> list:

@@ -9,11 +9,22 @@ flags are right (``--trust-flags``): then the flags are used and the contradicti
 recorded in the outputs (:meth:`HeaderCheck.overrides`).  docs/file-formats.md, "Header
 cross-checks", gives the reasons for each tolerance.
 
-    check = HeaderCheck(names=("A1",), camera=camera, track=track, weather=weather,
+    check = HeaderCheck(names=("A1", "A1"), camera=camera, track=track, weather=weather,
                         position_flags=True, weather_flags=True, trust_flags=False,
                         given_name="--sensor A1 (camera A1)")
     check(info)            # each FitsFrameInfo; ShipstarError on a contradiction
     check.overrides()      # with trust_flags: [{"key", "n_frames", "first"}, ...]
+
+Each name card is compared with what it names: ``SENSOR`` with the sensor's name and
+``INSTRUME`` with the camera's (``names=(sensor, camera)``), so a frame of sensor A1
+given as A1 but processed with camera A2's model (0.3 deg off), or A1's frames
+calibrated as sensor A2, are refused whichever card matches the other name.  Commands
+with only a camera (``names=(camera,)``: ``solve``, ``calibrate intrinsics``) compare
+``SENSOR`` with the camera's name (simulated frames write the camera's name there when
+the sensor has no other).  ``INSTRUME`` is FITS's instrument card, which capture
+software often fills with the camera's make and model: it contradicts only when it
+names another camera shipstar knows (a preset, or a camera of the run's other sensors:
+``known_cameras``), not any text that is not the camera's name.
 
 The image size is checked exactly and is never overridden: no camera model describes
 frames of another size.  The exposure (``EXPTIME``) is not compared with the camera
@@ -67,9 +78,11 @@ class HeaderCheck:
 
     Parameters
     ----------
-    names : iterable of str
-        Names the frames' ``SENSOR`` (else ``INSTRUME``) card may give: the sensor's and
-        its camera's (simulated frames record the camera's name); empty: not checked.
+    names : sequence of str
+        ``(sensor_name, camera_name)`` for a command with a sensor: a frame's ``SENSOR``
+        card must be the sensor's name and its ``INSTRUME`` card the camera's (each
+        compared when present); ``(camera_name,)`` for a command with only a camera:
+        each card present must be the camera's name; empty: not checked.
     given_name : str
         How the user named them, for messages (e.g. ``"--camera A2"``).
     camera : Camera or None
@@ -86,13 +99,25 @@ class HeaderCheck:
         Record contradictions instead of refusing them.
     sensor : str
         The sensor's name, recorded with each override (``""``: none).
+    known_cameras : iterable of str
+        Camera names besides the presets that an ``INSTRUME`` card contradicts with when it
+        is not the camera's (the run's other sensors' cameras).
     """
 
     def __init__(self, *, names=(), given_name: str = "", camera=None, track=None, weather=None,
                  position_flags: bool = False, weather_flags: bool = False, trust_flags: bool = False,
-                 sensor: str = ""):
+                 sensor: str = "", known_cameras=()):
+        from shipstar.camera import PRESETS
+
         self.sensor = sensor
-        self.names = frozenset(n for n in names if n)
+        self.known_cameras = frozenset(PRESETS) | frozenset(n for n in known_cameras if n)
+        names = tuple(names)
+        if len(names) > 2:
+            raise ValueError(f"names must be (sensor_name, camera_name) or (camera_name,), got {names!r}")
+        #: what SENSOR must say ("": only a camera: SENSOR is compared with the camera's
+        #: name) and what INSTRUME must say ("": names not checked)
+        self.sensor_name = (names[0] or "") if len(names) == 2 else ""
+        self.camera_name = (names[-1] or "") if names else ""
         self.given_name = given_name
         self.camera = camera
         self.track = track
@@ -116,15 +141,44 @@ class HeaderCheck:
                 "NAXIS1/NAXIS2", f"frame {name}: header NAXIS1 x NAXIS2 = {w} x {h} px but camera {cam.name!r} is "
                                  f"{cam.width_px} x {cam.height_px} px (must match; no camera model describes "
                                  "frames of another size)", overridable=False))
-        said = info.sensor_name
-        if self.names and said and said not in self.names:
-            key = "SENSOR" if info.sensor else "INSTRUME"
-            out.append(Contradiction(key, f"frame {name}: header {key} = {said!r} but {self.given_name} "
-                                          "(names must match)"))
+        if self._names_differ(info):
+            out += self._names(info)
         jd = (info.utc_jd1, info.utc_jd2)
         if math.isfinite(jd[0]) and math.isfinite(jd[1]):
             out += self._position(info, jd)
             out += self._weather(info, jd)
+        return out
+
+    def _instrume_differs(self, info) -> bool:
+        """An ``INSTRUME`` card naming another camera shipstar knows."""
+        return bool(info.instrume and self.camera_name and info.instrume != self.camera_name
+                    and info.instrume in self.known_cameras)
+
+    def _names_differ(self, info) -> bool:
+        """Whether a name card of the frame contradicts (cheap; :meth:`_names` words it)."""
+        want = self.sensor_name or self.camera_name
+        return bool((want and info.sensor and info.sensor != want) or self._instrume_differs(info))
+
+    def _names(self, info) -> list:
+        """SENSOR against the sensor's name (with only a camera, the camera's) and INSTRUME
+        against the camera's; with only a camera, the first of them that contradicts."""
+        name = info.name
+        if not self.sensor_name:
+            for key, said, differs in (("SENSOR", info.sensor, bool(info.sensor and info.sensor != self.camera_name)),
+                                       ("INSTRUME", info.instrume, self._instrume_differs(info))):
+                if self.camera_name and differs:
+                    return [Contradiction(key, f"frame {name}: header {key} = {said!r} but {self.given_name} "
+                                               "(names must match)")]
+            return []
+        out = []
+        if info.sensor and info.sensor != self.sensor_name:
+            out.append(Contradiction("SENSOR", f"frame {name}: header SENSOR = {info.sensor!r} but the sensor is "
+                                               f"{self.sensor_name!r} ({self.given_name}; SENSOR must name the "
+                                               "sensor)"))
+        if self._instrume_differs(info):
+            out.append(Contradiction("INSTRUME", f"frame {name}: header INSTRUME = {info.instrume!r} but the camera "
+                                                 f"is {self.camera_name!r} ({self.given_name}; INSTRUME must name "
+                                                 "the camera)"))
         return out
 
     def _position(self, info, jd) -> list:
@@ -204,8 +258,7 @@ class HeaderCheck:
             return
         cam = self.camera
         shape = None if cam is None else (cam.height_px, cam.width_px)
-        flag = np.fromiter(((shape is not None and tuple(i.shape_hw) != shape)
-                            or bool(self.names and i.sensor_name and i.sensor_name not in self.names)
+        flag = np.fromiter(((shape is not None and tuple(i.shape_hw) != shape) or self._names_differ(i)
                             for i in infos), bool, n)
         jd1 = np.fromiter((i.utc_jd1 for i in infos), float, n)
         jd2 = np.fromiter((i.utc_jd2 for i in infos), float, n)

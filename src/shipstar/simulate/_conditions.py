@@ -872,7 +872,7 @@ def condition_frame(spec, state, s, k: int, t_header: float):
 
 # --------------------------------------------------------------------------- the session
 
-def _write_frame_with(frame, block, path):
+def _write_frame_with(frame, block, path, sensor: str | None = None):
     """``write_frame`` with the conditions block added to the truth JSON."""
     from astropy.io import fits
 
@@ -880,7 +880,7 @@ def _write_frame_with(frame, block, path):
 
     fits_path, truth_path = Path(path), truth_path_for(path)
     hdu = fits.PrimaryHDU(np.asarray(frame.image, dtype=np.uint16))
-    for key, value, comment in fits_header_cards(frame):
+    for key, value, comment in fits_header_cards(frame, sensor):
         hdu.header[key] = (value, comment)
     truth = truth_dict(frame, fits_path.name)
     truth["conditions"] = block
@@ -943,7 +943,8 @@ def write_session_with_conditions(spec, out_dir, *, progress=None, max_output_by
         frames[s.name] = []
         for k, t in enumerate(spec.times_s(s)):
             frame, block = condition_frame(spec, state, s, k, float(t))
-            path, _ = _write_frame_with(frame, _json_safe(block), out / s.name / f"{s.name}_{k:05d}.fits")
+            path, _ = _write_frame_with(frame, _json_safe(block), out / s.name / f"{s.name}_{k:05d}.fits",
+                                        s.name)
             frames[s.name].append(path)
             rows.append(_csv_row(s.name, k, block))
             done += 1

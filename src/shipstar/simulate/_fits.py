@@ -175,8 +175,10 @@ def _time_cards(frame) -> list:
     return cards + [("TIMESYS", "UTC", ""), ("EXPTIME", frame.exposure_s, "[s] exposure time")]
 
 
-def fits_header_cards(frame) -> list:
-    """FITS header cards ``(keyword, value, comment)`` of a frame.
+def fits_header_cards(frame, sensor: str | None = None) -> list:
+    """FITS header cards ``(keyword, value, comment)`` of a frame; ``INSTRUME`` names its
+    camera and ``SENSOR`` the sensor (``sensor``, default the camera's name), as the
+    header checks read them (:mod:`shipstar.pipeline._header_check`).
 
     Times with microseconds: ``DATE-OBS`` and ``DATE-BEG`` at the start of the exposure
     (FITS 4.0), ``DATE-AVG`` at mid-exposure (the truth time), ``DATE-END`` at its end;
@@ -188,7 +190,7 @@ def fits_header_cards(frame) -> list:
     q = q_wxyz_from_matrix(frame.C_icrs_from_sensor)
     cards = _time_cards(frame) + [
         ("ROWORDER", "TOP-DOWN", "first row stored is the top of the image"),
-        ("INSTRUME", cam.name, "star sensor"), ("SENSOR", cam.name, "star sensor"),
+        ("INSTRUME", cam.name, "camera model"), ("SENSOR", cam.name if sensor is None else sensor, "star sensor"),
         ("ORIGIN", f"shipstar {__version__}", "simulated frame"),
         ("BUNIT", "adu", ""), ("FOCALLEN", cam.f_mm, "[mm] focal length"),
         ("XPIXSZ", cam.pixel_mm * 1000.0, "[um] pixel size"), ("YPIXSZ", cam.pixel_mm * 1000.0, "[um] pixel size"),
@@ -219,7 +221,7 @@ def _atomic_replace(path: Path, write) -> None:
         write(tmp)
 
 
-def write_frame(frame, path) -> tuple[Path, Path]:
+def write_frame(frame, path, sensor: str | None = None) -> tuple[Path, Path]:
     """Write ``frame`` as a FITS file and its truth JSON beside it.
 
     Parameters
@@ -227,6 +229,8 @@ def write_frame(frame, path) -> tuple[Path, Path]:
     frame : SimulatedFrame
     path : str or Path
         The FITS file, e.g. ``frame.fits``; the truth goes to :func:`truth_path_for`.
+    sensor : str, optional
+        The sensor's name for the ``SENSOR`` card (default the camera's name).
 
     Returns
     -------
@@ -242,7 +246,7 @@ def write_frame(frame, path) -> tuple[Path, Path]:
     if fits_path.is_dir():
         raise ShipstarError(f"{fits_path} is a directory, not a FITS file name")
     hdu = fits.PrimaryHDU(np.asarray(frame.image, dtype=np.uint16))
-    for key, value, comment in fits_header_cards(frame):
+    for key, value, comment in fits_header_cards(frame, sensor):
         hdu.header[key] = (value, comment)
     text = json.dumps(truth_dict(frame, fits_path.name), allow_nan=False, indent=1) + "\n"
     truth_path.unlink(missing_ok=True)                  # never leave an old truth beside a new image

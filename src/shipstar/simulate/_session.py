@@ -636,7 +636,8 @@ def write_session(spec: SessionSpec, out_dir, *, progress=None,
         (out / s.name).mkdir(exist_ok=True)
         frames[s.name] = []
         for k, t in enumerate(spec.times_s(s)):
-            path, _ = write_frame(_sensor_frame(spec, s, k, float(t)), out / s.name / f"{s.name}_{k:05d}.fits")
+            path, _ = write_frame(_sensor_frame(spec, s, k, float(t)), out / s.name / f"{s.name}_{k:05d}.fits",
+                                  s.name)
             frames[s.name].append(path)
             done += 1
             if progress is not None:
