@@ -54,6 +54,10 @@ the frames are averaged on SO(3) after rejecting outliers, and the installation 
 written with their per-frame std and standard error (docs/calibration-dock.md), the dock
 conditions (weather, refraction model, deflection of the vertical), the Earth orientation
 quality and any accuracy warnings.
+The ship must be still for every frame: frames whose installation scatters more than a
+still ship's can (their own noise plus 20'' across the boresight, 200'' about it; a ship
+at sea rolls by degrees) are refused as "the ship moved during the calibration frames";
+with --trust-flags the file is written anyway, the line recorded in its warnings.
 Exit codes: 0 every frame solved and used; 1 written, but some frames failed (listed) or
 were rejected as outliers of the mean (the counts on one line on stderr); 2 bad input.
 """
@@ -155,10 +159,14 @@ def _calibrate(args, camera, frames, results):
                           eop_quality=eop.quality, dut1_error_s=eop.dut1_error_s,
                           polar_motion_error_arcsec=eop.polar_motion_error_arcsec)
     C_hs = np.array([r.C_hor_from_sensor for r in results])
+    cov = np.array([r.horizontal.covariance_rad2 if r.solved else np.full((3, 3), np.nan) for r in results])
     record = override_record([args.header_check])
     return calibrate_installation(
         C_hs, dock.C_hor_from_deck, solved=[r.solved for r in results], sensor=args.sensor, camera=camera.name,
-        reasons=[r.reason for r in results], session=args.session or str(args.frames),
+        reasons=[r.reason for r in results], covariance_rad2=cov.reshape(-1, 3, 3),
+        if_moved="warn" if args.trust_flags else "refuse",
+        moved_hint="use --trust-flags to use the heading and level given anyway",
+        session=args.session or str(args.frames),
         date_utc=frames[0].utc_iso, dock=dock, warnings=tuple(accuracy_warnings(args)),
         trust_flags=bool(record), header_overrides=tuple(_override_lines(record)))
 
