@@ -101,9 +101,9 @@ def test_calibrate_install_refuses_to_write_over_a_frame(dock, capsys, monkeypat
 def test_calibrate_intrinsics_refuses_its_plot_on_its_out(dock, capsys, monkeypatch):
     monkeypatch.chdir(dock)
     code, line = _main(["calibrate", "intrinsics", "--frames", "dock/A1", "--camera", "A1", *DOCK_SITE,
-                        "--out", "cam.toml", "--plot", "cam.toml"], capsys)
-    assert code == 2 and "--out and --plot are the same file cam.toml" in line, line
-    assert not (dock / "cam.toml").exists()
+                        "--out", "cam.png", "--plot", "cam.png"], capsys)
+    assert code == 2 and "--out and --plot are the same file cam.png" in line, line
+    assert not (dock / "cam.png").exists()
 
 
 def test_solve_refuses_its_two_wcs_outputs_on_one_file(dock, capsys, monkeypatch):
