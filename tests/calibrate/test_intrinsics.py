@@ -589,6 +589,15 @@ def test_load_json_needs_a_time(tmp_path, sky, truth, date_obs):
     assert len(loaded.frames) == 2
 
 
+def test_load_json_refuses_date_obs_for_frames_with_their_own_time(tmp_path, sky, truth):
+    """--date-obs is for frames that carry no time; it silently replaced a frame's own time
+    (f_mm 94.9477 against 94.9388 mm on a bad-input sweep's ten frames)."""
+    _write_star_lists(tmp_path, sky, 2)
+    with pytest.raises(ShipstarError, match="carries its own time .*--date-obs is for frames that carry none"):
+        load_calibration_frames(tmp_path, truth, utc=iso_from_utc_jd(*sky[0]["jd"], 3))
+    assert len(load_calibration_frames(tmp_path, truth).frames) == 2
+
+
 def test_load_errors(tmp_path, truth):
     with pytest.raises(ShipstarError, match="not a directory"):
         load_calibration_frames(tmp_path / "missing", truth)

@@ -201,7 +201,10 @@ def _frame_from(xy, hip, meta: _Meta, overrides: dict, catalog):
     from shipstar.sky.refraction import Weather
     from shipstar.sky.time import utc_jd_from_iso
 
-    utc = overrides.get("utc") or meta.utc
+    utc = meta.utc or overrides.get("utc")
+    if meta.utc and overrides.get("utc"):                  # the flag is for frames that carry no time
+        raise ShipstarError(f"frame {meta.label!r} carries its own time ({meta.utc}): --date-obs is for frames "
+                            "that carry none")
     if utc is None and meta.time_problem and NO_DATE_TEXT not in meta.time_problem:
         raise ShipstarError(f"{meta.time_problem}; or give the time with --date-obs")
     if utc is None:

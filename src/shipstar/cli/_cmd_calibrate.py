@@ -111,7 +111,8 @@ def _add_intrinsics_parser(sub) -> argparse.ArgumentParser:
                    help="joint: fit the interstar angles instead of star directions with per-frame attitudes")
     p.add_argument("--no-term-check", action="store_true",
                    help="skip the check of which distortion terms the data support (needs explicit --terms)")
-    p.add_argument("--date-obs", metavar="ISO", help="UTC of frames that carry no time (ISO 8601)")
+    p.add_argument("--date-obs", metavar="ISO",
+                   help="UTC of frames that carry no time (ISO 8601; refused for frames with their own)")
     add_date_obs_is_argument(p, "what FITS frames' DATE-OBS means: start of the exposure (FITS standard, "
                                 "default) or mid-exposure (cameras that write it so)")
     add_site_arguments(p, SITE_HELPS, deflection=False)
