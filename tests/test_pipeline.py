@@ -215,6 +215,26 @@ def test_scan_frames_reads_times_and_checks_order(tmp_path):
         scan_frames(tmp_path)
 
 
+@pytest.mark.parametrize("exptime_s, overlap", [(2.0, True), (0.5, True), (0.1, False), (0.08, False), (None, False)])
+def test_scan_frames_refuses_exposures_that_overlap(tmp_path, exptime_s, overlap):
+    """An EXPTIME longer than the frames' spacing cannot be one camera's (a bad-input sweep:
+    EXPTIME = 2 on 10 Hz frames with DATE-OBS alone moved every frame's time by 1 s,
+    exit 0); one exposure ending as the next begins (video: 0.1 s at 10 Hz) is not."""
+    for k in range(3):
+        _write_fits(tmp_path / f"f{k}.fits", f"2013-03-15T12:16:00.{k}00", exptime_s=exptime_s)
+    if overlap:
+        with pytest.raises(ShipstarError, match=rf"frames f0.fits and f1.fits: their exposures \({exptime_s:g} "
+                                                rf"and {exptime_s:g} s, EXPTIME\) overlap, their mid-exposures 0.1 s "
+                                                "apart"):
+            scan_frames(tmp_path)
+    elif exptime_s is None:
+        with pytest.raises(ShipstarError, match="EXPTIME"):                 # no time without it: as before
+            scan_frames(tmp_path)
+        assert len(scan_frames(tmp_path, date_obs_is="mid")) == 3
+    else:
+        assert len(scan_frames(tmp_path)) == 3
+
+
 def test_frame_paths_are_in_the_order_of_sorted_paths(tmp_path):
     """The name-keyed sort gives the order ``sorted`` gives the Path objects themselves (the
     reference), for names of mixed lengths, cases, digits and punctuation, made in a

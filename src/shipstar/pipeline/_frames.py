@@ -309,9 +309,15 @@ def scan_frames(directory, *, date_obs_is: str = "start", check=None, headers=No
     if many is not None:
         many(infos)
     for a, b in zip(frames, frames[1:]):
-        if b.seconds_since(a.utc_jd1, a.utc_jd2) <= 0.0:
+        dt_s = b.seconds_since(a.utc_jd1, a.utc_jd2)
+        if dt_s <= 0.0:
             raise ShipstarError(f"frames out of time order: {b.label} (mid-exposure {b.utc_iso}) is not later than "
                                 f"{a.label} ({a.utc_iso})")
+        half_s = 0.5 * (a.exposure_s + b.exposure_s)           # NaN (unknown): not compared
+        if dt_s < 0.9 * half_s - 0.001:
+            raise ShipstarError(f"frames {a.label} and {b.label}: their exposures ({a.exposure_s:g} and "
+                                f"{b.exposure_s:g} s, EXPTIME) overlap, their mid-exposures {dt_s:g} s apart: a wrong "
+                                f"EXPTIME also moves each frame's time from DATE-OBS by half of it")
     return frames
 
 
