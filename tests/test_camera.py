@@ -507,3 +507,14 @@ class TestPresetsAndFiles:
             plain.replace(name=" ")
         with pytest.raises(ShipstarError):
             save_camera("A1", "/tmp/never.toml")
+
+    def test_a_file_s_principal_point_lies_on_the_sensor(self, a1, tmp_path):
+        """5000 on a 1024 px sensor was accepted (a bad-input sweep); the edge pixels'
+        outer halves are the sensor's."""
+        for key, value in (("x0_px", 5000.0), ("y0_px", -0.6), ("x0_px", 1023.6)):
+            save_camera(a1.replace(**{key: value}), tmp_path / "c.toml")
+            with pytest.raises(ShipstarError, match=rf"field '{key}' must lie on the sensor, within \[-0.5, 1023.5\] "
+                                                    rf"px, got {value:g}"):
+                load_camera(tmp_path / "c.toml")
+        save_camera(a1.replace(x0_px=-0.5, y0_px=1023.5), tmp_path / "c.toml")
+        assert load_camera(tmp_path / "c.toml").x0_px == -0.5

@@ -62,11 +62,19 @@ def camera_from_toml_text(text: str, source: str) -> Camera:
         if isinstance(value, float) and key in ("width_px", "height_px", "adc_bits"):
             raise ShipstarError(f"{where}: field {key!r} must be an integer, got {value!r}")
     try:
-        return Camera(distortion=Distortion(**dist), **kwargs)
+        camera = Camera(distortion=Distortion(**dist), **kwargs)
     except _FieldError as exc:
         raise ShipstarError(f"{where}: field {exc.field!r} {exc.problem}") from None
     except ShipstarError as exc:
         raise ShipstarError(f"{where}: {exc}") from None
+    # a star sensor's principal point lies on its sensor: a typo such as 5000 for 500 would
+    # turn every direction by degrees (checked in files, not in the Camera itself, whose
+    # intermediate fits may step outside)
+    for key, value, size in (("x0_px", camera.x0_px, camera.width_px), ("y0_px", camera.y0_px, camera.height_px)):
+        if not -0.5 <= value <= size - 0.5:
+            raise ShipstarError(f"{where}: field {key!r} must lie on the sensor, within [-0.5, {size - 0.5:g}] px, "
+                                f"got {value:g}")
+    return camera
 
 
 def _toml_value(value) -> str:
