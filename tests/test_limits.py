@@ -95,6 +95,13 @@ def test_installation_file_takes_dms_and_refuses_az_999(tmp_path):
                  '[dock]\nheading_deg = 46.47\npressure_hpa = 0.0\n')
     with pytest.raises(ShipstarError, match=r"dock\.pressure_hpa must be within \[500, 1100\] hPa"):
         load_installation(p)
+    # the calibration's date: an ISO time (date_utc = "garbage" was read; a bad-input sweep)
+    base = 'sensor = "A1"\ncamera = "A1"\naz_deg = 1.0\nel_deg = 39.0\nroll_deg = 0.0\n'
+    p.write_text(base + 'date_utc = "garbage"\n')
+    with pytest.raises(ShipstarError, match=r"installation file .*a\.toml: date_utc: .*garbage"):
+        load_installation(p)
+    p.write_text(base + 'date_utc = "2013-03-15T12:16:00Z"\n')
+    assert load_installation(p).date_utc == "2013-03-15T12:16:00Z"
 
 
 # -- track and weather plausibility --------------------------------------------------------

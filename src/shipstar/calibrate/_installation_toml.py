@@ -259,11 +259,18 @@ def load_installation(path):
     std = tuple(_number(doc, f"std_{a}_arcsec", "", path, required=False, finite=False) for a in _AXES)
     sem = tuple(_number(doc, f"sem_{a}_arcsec", "", path, required=False, finite=False) for a in _AXES)
     total = tuple(_number(doc, f"total_{a}_arcsec", "", path, required=False, finite=False) for a in _AXES)
+    date_utc = _text(doc, "date_utc", "", path, required=False)
+    if date_utc:                                        # the calibration's date: an ISO UTC time
+        from shipstar.sky.time import utc_jd_from_iso
+
+        try:
+            utc_jd_from_iso(date_utc)
+        except ShipstarError as exc:
+            raise ShipstarError(f"installation file {path}: date_utc: {exc}") from None
     return Installation(
         sensor=_text(doc, "sensor", "", path, required=True), camera=_text(doc, "camera", "", path, required=True),
         az_rad=angles[0], el_rad=angles[1], roll_rad=angles[2], std_arcsec=std, sem_arcsec=sem,
-        session=_text(doc, "session", "", path, required=False), date_utc=_text(doc, "date_utc", "", path,
-                                                                               required=False),
+        session=_text(doc, "session", "", path, required=False), date_utc=date_utc,
         dock=_dock(doc["dock"], path) if "dock" in doc else None, warnings=_warnings(doc, path), **counts,
         **_trust_flags(doc, path), total_arcsec=total, uncertainty=_uncertainty(doc, path),
         at_sea=_at_sea(doc, path))
