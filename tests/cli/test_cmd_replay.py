@@ -180,4 +180,9 @@ def test_bad_input_is_one_line_and_exit_2(session_dir, tmp_path, capsys):
     _bad([session_dir, "--to", out, "--sensor", f"A1={session_dir / 'A1'}"], capsys, "not both")
     _bad(["--to", out], capsys, "give a SESSION directory")
     _bad([session_dir], capsys, "--to")
+    # inside what is replayed (was written there; a bad-input sweep)
+    _bad([session_dir, "--to", session_dir / "copy"], capsys, "is inside SESSION", "which is being replayed")
+    _bad(["--sensor", f"A1={session_dir / 'A1'}", "--to", session_dir / "A1" / "x"], capsys,
+         "is inside --sensor A1")
+    assert not (session_dir / "copy").exists() and not (session_dir / "A1" / "x").exists()
     assert not out.exists()

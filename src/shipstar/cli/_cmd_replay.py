@@ -125,6 +125,22 @@ def _sources(args) -> tuple[dict, dict]:
     return dirs, {}
 
 
+def _check_apart(args, dirs: dict) -> None:
+    """Refuse a ``--to`` inside what is replayed (the SESSION, a sensor's frames): its
+    copies would land among the frames being read (found by a bad-input sweep)."""
+    import os
+    from pathlib import Path
+
+    to = Path(os.path.abspath(args.to)).resolve()
+    sources = ([("SESSION", Path(args.session))] if args.session is not None else []) + \
+        [(f"--sensor {name}", Path(d)) for name, d in dirs.items()]
+    for what, src in sources:
+        src = Path(os.path.abspath(src)).resolve()
+        if to == src or src in to.parents:
+            raise ShipstarError(f"--to {args.to} is inside {what} {src}, which is being replayed: give a directory "
+                                f"outside it")
+
+
 def _summary_text(result) -> str:
     counts = ", ".join(f"{n} {c}" for n, c in result.frames_by_sensor.items())
     rows = ", ".join(f"{n} {c}" for n, c in result.table_rows.items())
@@ -143,6 +159,7 @@ def run(args) -> int:
 
     dirs, tables = _sources(args)
     check_destination(args.to)
+    _check_apart(args, dirs)
     plan = plan_replay(dirs, tables, date_obs_is=args.date_obs_is)
     bar = ProgressBar(True if args.progress else None)
     try:
