@@ -342,3 +342,6 @@ def test_a_table_with_text_in_a_number_column_is_refused_and_not_kept(tmp_path, 
             assert "\n" not in str(err.value)
     assert eop_mod.EOP_FILE_ENV not in os.environ
     assert not list((tmp_path / "cache").glob("eop_v*_*.npz"))
+    for path, what in ((tmp_path, "a directory, not a file"), (tmp_path / "missing.all", "no such file")):
+        with pytest.raises(ShipstarError, match=f"IERS table {path}: {what}$"):   # a folder was "no such file"
+            eop_mod.set_eop_file(path)

@@ -353,7 +353,8 @@ def set_eop_file(path) -> str:
         return eop_source()
     full = os.path.abspath(os.fspath(path))
     if not os.path.isfile(full):
-        raise ShipstarError(f"IERS table {path}: no such file")
+        raise ShipstarError(f"IERS table {path}: " + ("a directory, not a file" if os.path.isdir(full) else
+                                                      "no such file"))
     _table(full)                                   # parse now: a bad file is refused before any work
     os.environ[EOP_FILE_ENV] = full
     return full
