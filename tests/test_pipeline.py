@@ -605,6 +605,23 @@ def test_attitude_csv_times_are_microseconds_and_name_their_source():
         assert r["time_source"] == expected
 
 
+def test_a_change_of_time_source_is_named_against_the_frames_before_it():
+    """The warning named "the sensor's first frame's" source, but after a first change it
+    compares with the frames just before (found by a bad-input sweep: DATE-BEG+... said,
+    the first frame's being DATE-AVG)."""
+    spec, cf = _sea(duration_s=0.4)
+    track, weather, _ = _tables(spec)
+    sources = ["DATE-AVG", "DATE-OBS+EXPTIME/2", "DATE-BEG+EXPTIME/2", "DATE-BEG+EXPTIME/2"]
+    frames = [[replace(f, time_source=sources[k] if s.name == "A1" else "DATE-AVG") for k, f in enumerate(fl)]
+              for s, fl in zip(spec.sensors, _frames(cf, spec))]
+    res = process_session(_true_configs(spec), frames, track, weather)
+    said = [w for e in res.emissions for w in e.warnings if "time comes from" in w]
+    assert said == [f"sensor A1: frame {frames[0][1].label}'s time comes from DATE-OBS+EXPTIME/2, the frames' before "
+                    "it from DATE-AVG",
+                    f"sensor A1: frame {frames[0][2].label}'s time comes from DATE-BEG+EXPTIME/2, the frames' before "
+                    "it from DATE-OBS+EXPTIME/2"]
+
+
 # -- times to the microsecond ---------------------------------------------------------------
 
 def test_result_times_are_microseconds():

@@ -332,7 +332,7 @@ class SessionEngine:
             self._source[s] = src
         elif src != self._source[s]:
             self._warnings.append(f"sensor {name}: frame {fr.label}'s time comes from {src or 'the caller'}, "
-                                  f"the sensor's first frame's from {self._source[s] or 'the caller'}")
+                                  f"the frames' before it from {self._source[s] or 'the caller'}")
             self._source[s] = src
         gap = t - self._last_t[s]
         if math.isfinite(gap) and gap > GAP_WARNING_S:
