@@ -217,6 +217,8 @@ def _check_limits(args) -> None:
                                 ("--install-angles-deg", ("A0", "E0", "G0"), args.install_angles_deg)):
         if not -90.0 <= angles[1] <= 90.0:
             raise ShipstarError(f"{flag}: the elevation {names[1]} must be within [-90, 90] deg, got {angles[1]:g}")
+    if not 0.0 < args.fov_deg < 180.0:
+        raise ShipstarError(f"--fov-deg must be within (0, 180) deg, got {args.fov_deg:g}")
     if args.points < 2 or args.mc_samples < 1:
         flag, value = ("--points", args.points) if args.points < 2 else ("--mc-samples", args.mc_samples)
         raise ShipstarError(f"{flag} must be at least {2 if flag == '--points' else 1}, got {value}")

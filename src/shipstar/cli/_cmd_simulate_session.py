@@ -111,6 +111,8 @@ def run(args) -> int:
         from shipstar.simulate._conditions import apply_conditions, load_conditions
 
         spec = apply_conditions(spec, load_conditions(args.conditions))
+    if not getattr(args, "ins_log", False) and (getattr(args, "ins_errors", "") or getattr(args, "ins_convention", "")):
+        raise ShipstarError("--ins-errors and --ins-convention describe the INS log: give --ins-log")
     if getattr(args, "ins_log", False):
         from shipstar.frames import AttitudeConvention
         from shipstar.simulate._ins import parse_ins_errors

@@ -106,7 +106,7 @@ def register(subparsers) -> argparse.ArgumentParser:
                    help="image size of the centroid lists, e.g. 1920x1080")
     p.add_argument("--track", action="store_true",
                    help="solve the inputs as a sequence, each tracked from the previous attitude")
-    p.add_argument("--prior-error-deg", type=_prior_error, default=1.0,
+    p.add_argument("--prior-error-deg", type=_prior_error, default=None,
                    help="--track: bound on the attitude change between inputs (deg, default 1)")
     p.add_argument("--wcs-out", metavar="FILE", help="write a FITS copy of the image with its WCS")
     p.add_argument("--wcs-header", metavar="FILE",
@@ -254,6 +254,10 @@ def _check_args(args) -> None:
         raise ShipstarError("--wcs-out / --wcs-header need exactly one input")
     if args.wcs_out and args.centroids:
         raise ShipstarError("--wcs-out copies an image: with --centroids use --wcs-header")
+    if args.prior_error_deg is not None and not args.track:
+        raise ShipstarError("--prior-error-deg bounds the attitude change between --track's inputs: give --track")
+    if args.prior_error_deg is None:
+        args.prior_error_deg = 1.0
     for flag, path in (("--wcs-out", args.wcs_out), ("--wcs-header", args.wcs_header)):
         if path:
             check_output_file(path, flag)

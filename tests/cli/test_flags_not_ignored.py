@@ -1,0 +1,40 @@
+"""A flag that cannot act is refused, not ignored (found by a bad-input sweep): each was
+accepted with exit 0 and its value never used, or a value no command could use."""
+
+from __future__ import annotations
+
+import pytest
+
+from shipstar.cli import main
+
+
+def _refused(args, capsys, *fragments):
+    try:
+        code = main(args)
+    except SystemExit as exc:
+        code = exc.code
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and "Traceback" not in err, err
+    for text in fragments:
+        assert text in lines[0], lines[0]
+
+
+def test_solve_prior_error_without_track(capsys, tmp_path):
+    _refused(["solve", str(tmp_path / "x.png"), "--fov-deg", "10", "--prior-error-deg", "2"], capsys,
+             "--prior-error-deg bounds the attitude change between --track's inputs: give --track")
+
+
+@pytest.mark.parametrize("flags", [["--ins-errors", "heading_bias_arcsec=30"],
+                                   ["--ins-convention", "roll=starboard-up"], ["--ins-errors", "bogus=1"]])
+def test_simulate_session_ins_flags_without_the_log(capsys, tmp_path, flags):
+    _refused(["simulate-session", "--kind", "sea", "--out", str(tmp_path / "s"), "--duration-s", "1", *flags],
+             capsys, "--ins-errors and --ins-convention describe the INS log: give --ins-log")
+    assert not (tmp_path / "s").exists()
+
+
+@pytest.mark.parametrize("value", ["-8", "0", "180"])
+def test_error_model_field_of_view_out_of_range(capsys, tmp_path, value):
+    _refused(["error-model", "--fov-deg", value, "--out", str(tmp_path / "em")], capsys,
+             f"--fov-deg must be within (0, 180) deg, got {float(value):g}")
+    assert not (tmp_path / "em").exists()
