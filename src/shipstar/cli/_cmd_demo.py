@@ -20,7 +20,9 @@ What it does:
   --quick: dock 2 s and sea 10 s (under 30 s).
 
 Writes into OUT only: report.html, results.json, dock/<sensor>.installation.toml,
-sea/{track,weather,truth}.csv and config-used/ (the configuration it ran).
+sea/{track,weather,truth}.csv and, without --config, config-used/ (the configuration it
+ran). An earlier demo's outputs in OUT are replaced; an OUT/sea or OUT/dock holding
+anything else (a session's frames) is refused, nothing touched.
 
 examples:
   shipstar demo                              # full run into ./shipstar-demo
