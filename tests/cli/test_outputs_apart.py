@@ -127,3 +127,20 @@ def test_the_check_reads_pairs_lists_and_ignores_flags_that_are_not_paths(tmp_pa
         check_outputs_apart(args, [("--out", tmp_path / "frames" / "x.FITS.gz", None)])
     check_outputs_apart(args, [("--out", tmp_path / "frames" / ".x.fits", None),      # hidden: not a frame
                                ("--out", tmp_path / "o.csv", None), ("--plots", None, ("a.png",))])
+
+
+@pytest.mark.parametrize("command", [
+    ["measure", "--workers", "1", "--out", "o.csv"],
+    ["measure-archive", "--workers", "1", "--out", "o.csv"],
+    ["live", "--out", "o.csv"],
+])
+def test_two_sensors_reading_one_folder_are_refused(dock, capsys, monkeypatch, command):
+    """Frames without a SENSOR card went through as both sensors' (a bad-input sweep: live
+    with two sensors watching one folder)."""
+    monkeypatch.chdir(dock)
+    (dock / "A2.toml").write_text((dock / "A1.toml").read_text().replace('sensor = "A1"', 'sensor = "A2"'))
+    code, line = _main([command[0], "--sensor", "A1=dock/A1", "--sensor", "A2=./dock/A1/", "--install", "A1.toml",
+                        "A2.toml", *DOCK_SITE, *command[1:]], capsys)
+    assert code == 2 and line.endswith("--sensor A1 and --sensor A2 read the same folder ./dock/A1/: each sensor "
+                                       "needs its own"), line
+    assert not list(dock.glob("o.csv*"))

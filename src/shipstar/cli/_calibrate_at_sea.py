@@ -17,6 +17,7 @@ from shipstar.cli._common import (
     add_site_arguments,
     add_weather_arguments,
     check_output_file,
+    check_folders_apart,
     check_outputs_apart,
     emit_json,
 )
@@ -112,6 +113,7 @@ def run_at_sea(args) -> int:
 
     check_output_file(args.out, "--out")
     check_outputs_apart(args, [("--out", args.out, None)])
+    check_folders_apart(args)
     args.sensor_to_calibrate = args.sensor
     args.sensor = _order(args)                       # measure's helpers read (name, dir) pairs
     track, weather = _site_and_weather(args)

@@ -13,6 +13,7 @@ from shipstar.cli._common import (
     add_windowed_argument,
     add_weather_arguments,
     check_output_file,
+    check_folders_apart,
     check_outputs_apart,
     emit_json,
     float_in_range,
@@ -224,6 +225,7 @@ def _settings(args, report):
 
     http = parse_http_address(args.http) if args.http else None
     udp = tuple(parse_host_port(u) for u in args.udp)
+    check_folders_apart(args)
     out = None
     if args.out:
         out = check_output_file(args.out, "--out")

@@ -14,6 +14,7 @@ from shipstar.cli._common import (
     add_weather_arguments,
     check_output_dir,
     check_output_file,
+    check_folders_apart,
     check_outputs_apart,
     emit_json,
     float_in_range,
@@ -378,6 +379,7 @@ def _check_outputs(args) -> None:
     if args.plots:
         check_output_dir(args.plots, "--plots", files=("attitude.png", "residuals.png"))
     ins = bool(getattr(args, "ins", None))
+    check_folders_apart(args)
     check_outputs_apart(args, [("--out", args.out, None), ("--monitor", args.monitor, None),
                                ("--plots", args.plots, ("attitude.png", "residuals.png")),
                                ("--plots", args.plots if ins else None, PLOT_FILES),

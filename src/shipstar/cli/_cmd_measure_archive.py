@@ -11,6 +11,7 @@ from shipstar.cli._common import (
     add_weather_arguments,
     check_output_dir,
     check_output_file,
+    check_folders_apart,
     check_outputs_apart,
     emit_json,
     float_in_range,
@@ -207,6 +208,7 @@ def _plan_output(session) -> None:
 
     a = session.args
     check_output_file(a.out, "--out")
+    check_folders_apart(a)
     check_outputs_apart(a, [("--out", a.out, None)])
     out = Path(a.out)
     partial = out.with_name(out.name + ".partial")

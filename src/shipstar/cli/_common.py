@@ -14,7 +14,7 @@ from shipstar.errors import ShipstarError
 
 __all__ = ["finite_float", "angle_deg", "in_range", "latitude_deg", "longitude_deg", "deflection_arcsec", "fraction", "positive_float",
            "int_in_range", "float_in_range", "rng_seed", "add_site_arguments", "add_weather_arguments", "add_windowed_argument", "WINDOWED_HELP",
-           "add_refraction_arguments", "add_date_obs_is_argument", "REFRACTION_MODELS", "emit_json", "atomic_write_text", "check_output_file", "check_output_dir", "check_outputs_apart", "accuracy_warnings",
+           "add_refraction_arguments", "add_date_obs_is_argument", "REFRACTION_MODELS", "emit_json", "atomic_write_text", "check_output_file", "check_output_dir", "check_outputs_apart", "check_folders_apart", "accuracy_warnings",
            "one_line"]
 
 
@@ -262,6 +262,26 @@ def _paths(value) -> list:
     if isinstance(value, (list, tuple)):
         return [p for v in value for p in _paths(v)]
     return [value] if isinstance(value, (str, os.PathLike)) and str(value) != "" else []
+
+
+def check_folders_apart(args) -> None:
+    """Refuse (ShipstarError, one line) two sensors reading one folder of frames
+    (``--sensor A1=d --sensor A2=d``): their frames would be one sensor's twice, caught
+    today only where the frames carry a SENSOR card."""
+    seen = {}
+    for attr, flag in _INPUT_FOLDERS[:2]:                   # --sensor, --frames: NAME=DIR pairs
+        value = getattr(args, attr, None)
+        if not isinstance(value, list):
+            continue
+        for item in value:
+            if not (isinstance(item, tuple) and len(item) == 2):
+                continue
+            name, folder = item
+            real = Path(os.path.abspath(os.path.expanduser(os.fspath(folder)))).resolve()
+            if real in seen and seen[real][0] != name:
+                raise ShipstarError(f"{flag} {seen[real][0]} and {flag} {name} read the same folder {folder}: "
+                                    f"each sensor needs its own")
+            seen.setdefault(real, (name, folder))
 
 
 def check_outputs_apart(args, outputs) -> None:
