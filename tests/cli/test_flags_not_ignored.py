@@ -3,6 +3,7 @@ accepted with exit 0 and its value never used, or a value no command could use."
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from shipstar.cli import main
@@ -38,3 +39,19 @@ def test_error_model_field_of_view_out_of_range(capsys, tmp_path, value):
     _refused(["error-model", "--fov-deg", value, "--out", str(tmp_path / "em")], capsys,
              f"--fov-deg must be within (0, 180) deg, got {float(value):g}")
     assert not (tmp_path / "em").exists()
+
+
+@pytest.mark.parametrize("command", ["measure", "live"])
+def test_relative_humidity_beside_a_weather_table(capsys, tmp_path, command):
+    """The table's humidity was used and the flag's dropped without a word."""
+    weather = tmp_path / "weather.csv"
+    weather.write_text("time_utc,pressure_hpa,temperature_c\n2013-03-15T12:00:00Z,1021.7,11.1\n")
+    (tmp_path / "A1").mkdir()
+    from shipstar.calibrate.installation import Installation, save_installation
+
+    save_installation(Installation.from_matrix("A1", "A1", np.eye(3)), tmp_path / "A1.toml")
+    _refused([command, "--sensor", f"A1={tmp_path / 'A1'}", "--install", str(tmp_path / "A1.toml"),
+              "--lat-deg", "31.9", "--lon-deg", "120.3", "--weather", str(weather), "--relative-humidity", "0.5",
+              "--out", str(tmp_path / "o.csv")], capsys,
+             "--relative-humidity goes with --pressure-hpa/--temperature-c: the --weather table gives its own")
+    assert not list(tmp_path.glob("o.csv*"))

@@ -86,7 +86,7 @@ def register(subparsers) -> argparse.ArgumentParser:
     g.add_argument("--nav-udp", metavar="[HOST:]PORT",
                    help="NMEA 0183 over UDP: GGA/RMC position, ZDA date, MDA/XDR weather (HOST default 0.0.0.0)")
     w = p.add_argument_group("weather (fixed, a growing table, or from --nav-udp)")
-    add_weather_arguments(w, WEATHER_HELPS)
+    add_weather_arguments(w, WEATHER_HELPS, humidity_default=None)
     w.add_argument("--weather", metavar="CSV", help="time_utc, pressure_hpa, temperature_c[, relative_humidity]; "
                                                    "read as it grows")
     o = p.add_argument_group("processing")
@@ -180,11 +180,14 @@ def _position_and_weather(args, report):
     fixed = [args.pressure_hpa, args.temperature_c]
     if args.weather and any(v is not None for v in fixed):
         raise ShipstarError("give either --weather or --pressure-hpa/--temperature-c, not both")
+    if args.weather and args.relative_humidity is not None:
+        raise ShipstarError("--relative-humidity goes with --pressure-hpa/--temperature-c: the --weather table "
+                            "gives its own (column relative_humidity, 0 without it)")
     if args.weather:
         weather = LiveWeather(name=f"weather table {args.weather}")
         tails.append(CsvTail(args.weather, weather, on_error=report))
     elif all(v is not None for v in fixed):
-        weather = WeatherTable.constant(args.pressure_hpa, args.temperature_c, args.relative_humidity)
+        weather = WeatherTable.constant(args.pressure_hpa, args.temperature_c, args.relative_humidity or 0.0)
     elif any(v is not None for v in fixed):
         raise ShipstarError("give both --pressure-hpa and --temperature-c")
     elif args.nav_udp:

@@ -201,6 +201,9 @@ def _site_and_weather(args):
     fixed = [args.pressure_hpa, args.temperature_c]
     if args.weather and any(v is not None for v in fixed):
         raise ShipstarError("give either --weather or --pressure-hpa/--temperature-c, not both")
+    if args.weather and getattr(args, "relative_humidity", None) is not None:
+        raise ShipstarError("--relative-humidity goes with --pressure-hpa/--temperature-c: the --weather table "
+                            "gives its own (column relative_humidity, 0 without it)")
     if args.weather:
         return track, WeatherTable.read_csv(args.weather)
     if any(v is None for v in fixed):
