@@ -240,6 +240,10 @@ def test_pynmea2_reads_the_simulated_nmea(tmp_path):
 def test_ins_errors_and_convention_refused_in_one_line():
     with pytest.raises(ShipstarError, match="roll must be port-up or starboard-up"):
         AttitudeConvention("roll=up")
+    # a key given twice: the last one won, a sign chosen without a word (a bad-input sweep)
+    with pytest.raises(ShipstarError, match=r"INS convention 'roll=port-up,ROLL=starboard-up': roll given twice"):
+        AttitudeConvention("roll=port-up,ROLL=starboard-up")
+    assert AttitudeConvention("roll=starboard-up,pitch=bow-down").roll_sign == -1.0
     with pytest.raises(ShipstarError, match="name=value"):
         parse_ins_errors("bias=3")
     assert parse_ins_errors("misalignment_arcsec=1/2/3,time_offset_s=0.01").misalignment_arcsec == (1.0, 2.0, 3.0)

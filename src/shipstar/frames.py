@@ -408,6 +408,7 @@ class AttitudeConvention:
         from shipstar.errors import ShipstarError
 
         roll, pitch = 1.0, 1.0
+        given = set()
         for part in (p.strip() for p in str(text).split(",")):
             if not part:
                 continue
@@ -415,6 +416,9 @@ class AttitudeConvention:
             if not sep:
                 raise ShipstarError(f"INS convention {part!r}: write key=value (roll=port-up|starboard-up, "
                                     f"pitch=bow-up|bow-down, heading=true)")
+            if key in given:                        # the last one won: a sign chosen without a word
+                raise ShipstarError(f"INS convention {text!r}: {key} given twice")
+            given.add(key)
             if key == "roll" and value in _ROLL_WORDS:
                 roll = _ROLL_WORDS[value]
             elif key == "pitch" and value in _PITCH_WORDS:
