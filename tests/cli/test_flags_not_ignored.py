@@ -55,3 +55,9 @@ def test_relative_humidity_beside_a_weather_table(capsys, tmp_path, command):
               "--out", str(tmp_path / "o.csv")], capsys,
              "--relative-humidity goes with --pressure-hpa/--temperature-c: the --weather table gives its own")
     assert not list(tmp_path.glob("o.csv*"))
+
+
+def test_calibrate_intrinsics_empty_terms(capsys, tmp_path):
+    """--terms "" was taken as none (an unset variable in a script fits no distortion)."""
+    _refused(["calibrate", "intrinsics", "--frames", str(tmp_path), "--camera", "A1", "--terms", "",
+              "--out", str(tmp_path / "c.toml")], capsys, "--terms is empty: give auto, all, none or a list")

@@ -221,6 +221,8 @@ def _check_arguments(args) -> None:
 
     if args.plot and args.no_plot:
         raise ShipstarError("give --plot or --no-plot, not both")
+    if not args.terms.strip():                  # an unset variable in a script, not "none"
+        raise ShipstarError("--terms is empty: give auto, all, none or a list such as k1,k2,p1,p2")
     if args.no_term_check and args.terms.strip().lower() == "auto":
         raise ShipstarError("--no-term-check needs explicit --terms (auto chooses the terms by that check)")
     if args.in_space and (args.lat_deg is not None or args.pressure_hpa is not None
