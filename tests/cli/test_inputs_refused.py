@@ -8,21 +8,9 @@ from __future__ import annotations
 
 import pytest
 
-from shipstar.cli import build_parser, main
+from shipstar.cli import build_parser
 
-DOCK_SITE = ["--lat-deg", "31.9", "--lon-deg", "120.3", "--pressure-hpa", "1021.7", "--temperature-c", "11.1"]
-
-
-def _main(args, capsys):
-    """``(exit code, the one stderr line)`` of ``shipstar ARGS``."""
-    try:
-        code = main(args)
-    except SystemExit as exc:                   # argparse's usage errors
-        code = exc.code
-    err = capsys.readouterr().err
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in err, err
-    return code, lines[0]
+from _cli import DOCK_SITE, one_line_error as _main  # tests/cli on sys.path
 
 
 # every command that takes the weather: the same ranges
@@ -93,20 +81,6 @@ def test_degrees_minutes_seconds_on_the_command_line():
 
 
 # -- files: installation, track, weather ----------------------------------------------------
-
-@pytest.fixture(scope="module")
-def dock(tmp_path_factory):
-    """A 0.3 s simulated dock session and A1's true installation file."""
-    from shipstar.calibrate.installation import Installation, save_installation
-    from shipstar.simulate._session import dock_session, write_session
-
-    root = tmp_path_factory.mktemp("refused")
-    spec = dock_session(duration_s=0.3)
-    write_session(spec, root / "dock")
-    s = spec.sensors[0]
-    save_installation(Installation.from_matrix(s.name, s.camera.name, s.C_deck_from_sensor), root / "A1.toml")
-    return root
-
 
 def _measure(dock, capsys, monkeypatch, *args):
     monkeypatch.chdir(dock)

@@ -18,35 +18,14 @@ from shipstar.cli import main
 from shipstar.cli._common import check_outputs_apart
 from shipstar.errors import ShipstarError
 
-DOCK_SITE = ["--lat-deg", "31.9", "--lon-deg", "120.3", "--pressure-hpa", "1021.7", "--temperature-c", "11.1"]
+from _cli import DOCK_SITE, one_line_error as _main  # tests/cli on sys.path; the dock fixture: conftest.py
 
 
-def _main(args, capsys):
-    """``(exit code, the one stderr line)`` of ``shipstar ARGS``."""
-    try:
-        code = main(args)
-    except SystemExit as exc:
-        code = exc.code
-    err = capsys.readouterr().err
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in err, err
-    return code, lines[0]
-
-
-@pytest.fixture(scope="module")
-def dock(tmp_path_factory):
-    """A 0.3 s simulated dock session and A1's true installation file."""
-    from shipstar.calibrate.installation import Installation, save_installation
-    from shipstar.simulate._session import dock_session, write_session
-
-    root = tmp_path_factory.mktemp("apart")
-    spec = dock_session(duration_s=0.3)
-    write_session(spec, root / "dock")
-    s = spec.sensors[0]
-    save_installation(Installation.from_matrix(s.name, s.camera.name, s.C_deck_from_sensor), root / "A1.toml")
-    (root / "dock" / "weather.csv").write_text("time_utc,pressure_hpa,temperature_c\n"
+@pytest.fixture(autouse=True)
+def _weather(dock):
+    """A weather table beside the dock frames (an input the outputs are kept apart from)."""
+    (dock / "dock" / "weather.csv").write_text("time_utc,pressure_hpa,temperature_c\n"
                                                "2013-03-15T12:00:00,1021.7,11.1\n2013-03-15T13:00:00,1021.7,11.1\n")
-    return root
 
 
 def _snapshot(root):
