@@ -128,14 +128,13 @@ def _sources(args) -> tuple[dict, dict]:
 def _check_apart(args, dirs: dict) -> None:
     """Refuse a ``--to`` inside what is replayed (the SESSION, a sensor's frames): its
     copies would land among the frames being read (found by a bad-input sweep)."""
-    import os
-    from pathlib import Path
+    from shipstar.cli._common import resolved_path
 
-    to = Path(os.path.abspath(args.to)).resolve()
-    sources = ([("SESSION", Path(args.session))] if args.session is not None else []) + \
-        [(f"--sensor {name}", Path(d)) for name, d in dirs.items()]
+    to = resolved_path(args.to)
+    sources = ([("SESSION", args.session)] if args.session is not None else []) + \
+        [(f"--sensor {name}", d) for name, d in dirs.items()]
     for what, src in sources:
-        src = Path(os.path.abspath(src)).resolve()
+        src = resolved_path(src)
         if to == src or src in to.parents:
             raise ShipstarError(f"--to {args.to} is inside {what} {src}, which is being replayed: give a directory "
                                 f"outside it")

@@ -14,7 +14,7 @@ from shipstar.errors import ShipstarError
 
 __all__ = ["finite_float", "angle_deg", "in_range", "latitude_deg", "longitude_deg", "deflection_arcsec", "fraction", "positive_float",
            "int_in_range", "float_in_range", "rng_seed", "add_site_arguments", "add_weather_arguments", "add_windowed_argument", "WINDOWED_HELP",
-           "add_refraction_arguments", "add_date_obs_is_argument", "REFRACTION_MODELS", "emit_json", "atomic_write_text", "check_output_file", "check_output_dir", "check_outputs_apart", "check_folders_apart", "accuracy_warnings",
+           "add_refraction_arguments", "add_date_obs_is_argument", "REFRACTION_MODELS", "emit_json", "atomic_write_text", "check_output_file", "check_output_dir", "check_outputs_apart", "check_folders_apart", "resolved_path", "accuracy_warnings",
            "one_line"]
 
 
@@ -264,6 +264,12 @@ def _paths(value) -> list:
     return [value] if isinstance(value, (str, os.PathLike)) and str(value) != "" else []
 
 
+def resolved_path(path) -> Path:
+    """``path`` absolute, ``~`` expanded, symbolic links followed: where two spellings of
+    one file compare equal."""
+    return Path(os.path.abspath(os.path.expanduser(os.fspath(path)))).resolve()
+
+
 def check_folders_apart(args) -> None:
     """Refuse (ShipstarError, one line) two sensors reading one folder of frames
     (``--sensor A1=d --sensor A2=d``): their frames would be one sensor's twice, caught
@@ -277,7 +283,7 @@ def check_folders_apart(args) -> None:
             if not (isinstance(item, tuple) and len(item) == 2):
                 continue
             name, folder = item
-            real = Path(os.path.abspath(os.path.expanduser(os.fspath(folder)))).resolve()
+            real = resolved_path(folder)
             if real in seen and seen[real][0] != name:
                 raise ShipstarError(f"{flag} {seen[real][0]} and {flag} {name} read the same folder {folder}: "
                                     f"each sensor needs its own")
@@ -303,37 +309,33 @@ def check_outputs_apart(args, outputs) -> None:
     """
     from shipstar._fitsio import is_fits_name
 
-    def key(path) -> Path:
-        return Path(os.path.abspath(os.path.expanduser(os.fspath(path))))
-
-    files, folders = [], []                         # (flag, shown, key)
+    files, folders = [], []                         # (flag, shown, resolved path)
     for flag, path, names in outputs:
         if path is None or str(path) == "":
             continue
         if names is None:
-            files.append((flag, path, key(path)))
+            files.append((flag, path, resolved_path(path)))
         else:
-            folders.append((flag, path, key(path)))
-            files.extend((flag, Path(path) / name, key(Path(path) / name)) for name in names)
+            folders.append((flag, path, resolved_path(path)))
+            files.extend((flag, Path(path) / name, resolved_path(Path(path) / name)) for name in names)
     inputs = {}
     for attr, flag in _INPUT_FILES:
         for p in _paths(getattr(args, attr, None)):
             if Path(p).is_file():
-                inputs.setdefault(key(p).resolve(), (flag, p))
+                inputs.setdefault(resolved_path(p), (flag, p))
     frame_dirs = {}
     for attr, flag in _INPUT_FOLDERS:
         for p in _paths(getattr(args, attr, None)):
             if Path(p).is_dir():
-                frame_dirs.setdefault(key(p).resolve(), (flag, p))
+                frame_dirs.setdefault(resolved_path(p), (flag, p))
     seen = {}
-    for flag, shown, k in files:
-        real = k.resolve()
+    for flag, shown, real in files:
         if real in inputs:
             in_flag, in_path = inputs[real]
             what = "the" if in_flag is None else f"the {in_flag}"
             what += " input" if str(in_path) == str(shown) else f" input {in_path}"
             raise ShipstarError(f"{flag} {shown} is {what}: refusing to overwrite it")
-        if is_fits_name(k.name) and real.parent in frame_dirs:
+        if is_fits_name(Path(shown).name) and real.parent in frame_dirs:
             in_flag, in_path = frame_dirs[real.parent]
             if real.exists():
                 raise ShipstarError(f"{flag} {shown} is a frame of the {in_flag} folder {in_path}: refusing to "
@@ -343,8 +345,7 @@ def check_outputs_apart(args, outputs) -> None:
         if real in seen and seen[real][0] != flag:
             raise ShipstarError(f"{seen[real][0]} and {flag} are the same file {shown}: give each its own")
         seen.setdefault(real, (flag, shown))
-    for flag, shown, k in folders:
-        real = k.resolve()
+    for flag, shown, real in folders:
         if real in seen:
             raise ShipstarError(f"{seen[real][0]} {seen[real][1]} is the {flag} folder: give each its own")
 
