@@ -56,3 +56,11 @@ def test_calibrate_intrinsics_empty_terms(capsys, tmp_path):
     """--terms "" was taken as none (an unset variable in a script fits no distortion)."""
     _refused(["calibrate", "intrinsics", "--frames", str(tmp_path), "--camera", "A1", "--terms", "",
               "--out", str(tmp_path / "c.toml")], capsys, "--terms is empty: give auto, all, none or a list")
+
+
+def test_error_model_out_that_is_a_file(capsys, tmp_path):
+    """Said "cannot write --out afile: already exists" (a bad-input sweep)."""
+    (tmp_path / "afile").write_text("x")
+    _refused(["error-model", "--out", str(tmp_path / "afile")], capsys,
+             f"--out {tmp_path / 'afile'} exists and is not a directory")
+    assert (tmp_path / "afile").read_text() == "x"

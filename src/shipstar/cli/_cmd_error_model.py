@@ -233,15 +233,15 @@ def _check_limits(args) -> None:
 
 
 def run(args) -> int:
-    from pathlib import Path
-
     import shipstar.errormodel as em
     from shipstar.pipeline._progress import ProgressBar
 
+    from shipstar.cli._common import check_output_dir
+
     _check_limits(args)
+    out_dir = check_output_dir(args.out, "--out")     # a file in its place: said so, not "already exists"
     bar = ProgressBar(True if args.progress else None)
     steps = 1 + bool(args.sweep) + bool(args.layout)
-    out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
     result = {
         "convention": args.convention,
