@@ -214,7 +214,13 @@ def test_no_cumulative_drift_and_speed_scales_time(tmp_path):
     rate = np.polyfit(expected, t_seen - t_seen[0], 1)[0]
     print(f"speed 4: max |deviation| {1000 * np.abs(dev_s).max():.1f} ms, clock rate {rate:.5f}, "
           f"max lateness {result.max_late_ms:.2f} ms")
-    assert np.abs(dev_s).max() < TOLERANCE_S
+    # the replay's own schedule (its lateness, measured as it writes) within the tolerance;
+    # what the watcher sees adds its delivery's jitter: once in CI one event of 60 came
+    # 65 ms off while the replay was at most 25 ms late, so the observed times are held to
+    # the tolerance but for the odd delivery (95 % of them), and every one to twice it
+    assert result.max_late_ms < 1000 * TOLERANCE_S
+    assert np.percentile(np.abs(dev_s), 95) < TOLERANCE_S
+    assert np.abs(dev_s).max() < 2 * TOLERANCE_S
     assert abs(dev_s[-10:].mean()) < 0.5 * TOLERANCE_S          # no drift at the end
     # the rate of the file events' times, fitted over 0.74 s: their delivery jitters by ~5-15 ms
     # on a loaded host (1.0055-1.0089 seen in 3 of 10 runs at 0.5 %); a replay that slept from
