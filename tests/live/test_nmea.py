@@ -358,3 +358,27 @@ def test_utc_jd_from_date_matches_iso():
     ref = utc_jd_from_iso("2013-03-15T12:16:03.123456")
     assert ((jd[0] - ref[0]) + (jd[1] - ref[1])) * 86400 == pytest.approx(0.0, abs=1e-9)
     assert math.isfinite(jd[0])
+
+
+def test_udp_destinations_are_resolved_once_at_the_start(capsys, tmp_path):
+    """A destination whose host cannot be resolved was accepted: every datagram's send
+    failed, counted in the summary but silent (a bad-input sweep); now the start refuses it
+    in one line. The .invalid top-level domain never resolves (RFC 2606)."""
+    from shipstar.cli import main
+    from shipstar.live._outputs import resolve_udp_destination
+
+    assert resolve_udp_destination("127.0.0.1", 10110) == ("127.0.0.1", 10110)
+    assert resolve_udp_destination("localhost", 10110) == ("127.0.0.1", 10110)
+    with pytest.raises(ShipstarError, match=r"UDP destination nosuchhost.invalid:10110: the host cannot be resolved"):
+        resolve_udp_destination("nosuchhost.invalid", 10110)
+    import numpy as np
+
+    from shipstar.calibrate.installation import Installation, save_installation
+
+    (tmp_path / "A1").mkdir()
+    save_installation(Installation.from_matrix("A1", "A1", np.eye(3)), tmp_path / "A1.toml")
+    code = main(["live", "--sensor", f"A1={tmp_path / 'A1'}", "--install", str(tmp_path / "A1.toml"),
+                 "--lat-deg", "31.9", "--lon-deg", "120.3", "--pressure-hpa", "1021.7", "--temperature-c", "11.1",
+                 "--udp", "nosuchhost.invalid:10110"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "nosuchhost.invalid:10110: the host cannot be resolved" in err[0], err

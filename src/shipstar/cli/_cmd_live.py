@@ -203,7 +203,7 @@ def _settings(args, report):
 
     from shipstar.camera import load_camera
     from shipstar.cli._cmd_measure import _installations, _refraction_mismatch
-    from shipstar.live._outputs import parse_host_port
+    from shipstar.live._outputs import parse_host_port, resolve_udp_destination
     from shipstar.live._run import LiveSettings
     from shipstar.pipeline import PipelineOptions, SensorConfig
 
@@ -227,7 +227,7 @@ def _settings(args, report):
     from shipstar.live._http import parse_http_address
 
     http = parse_http_address(args.http) if args.http else None
-    udp = tuple(parse_host_port(u) for u in args.udp)
+    udp = tuple(resolve_udp_destination(*parse_host_port(u)) for u in args.udp)
     check_folders_apart(args)
     out = None
     if args.out:

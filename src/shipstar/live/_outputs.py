@@ -19,7 +19,8 @@ import socket
 from shipstar.errors import ShipstarError
 from shipstar.units import RAD2ASEC, RAD2DEG
 
-__all__ = ["FORMATS", "METHODS", "UdpOutput", "row_objects", "epoch_sentences", "parse_host_port"]
+__all__ = ["FORMATS", "METHODS", "UdpOutput", "row_objects", "epoch_sentences", "parse_host_port",
+           "resolve_udp_destination"]
 
 FORMATS = ("jsonl", "nmea")
 METHODS = ("joint", "seed-rule", "single")
@@ -47,6 +48,18 @@ def parse_host_port(text: str, *, default_host: str | None = None) -> tuple[str,
     if not 1 <= number <= 65535:
         raise ShipstarError(f"port must be in 1-65535, got {number} in {text!r}")
     return host, number
+
+
+def resolve_udp_destination(host: str, port: int) -> tuple[str, int]:
+    """``(IPv4 address, port)`` of a UDP destination, its name looked up once, at the start:
+    a host that cannot be resolved is a one-line ShipstarError there (it was every
+    datagram's lost send, counted but silent), and no datagram waits for a name lookup."""
+    try:
+        info = socket.getaddrinfo(host, port, socket.AF_INET, socket.SOCK_DGRAM)
+    except socket.gaierror as exc:
+        raise ShipstarError(f"UDP destination {host}:{port}: the host cannot be resolved "
+                            f"({exc.strerror or exc})") from None
+    return info[0][4][0], int(port)
 
 
 def row_objects(rows) -> list:
