@@ -121,6 +121,18 @@ def test_bad_cache_bound_is_refused(cache, monkeypatch):
         prune_cache()
 
 
+@pytest.mark.parametrize("name, value", [("SHIPSTAR_CACHE_MAX_MB", "abc"), ("SHIPSTAR_CACHE_MAX_FILES", "-5")])
+def test_a_bad_cache_bound_is_refused_at_the_first_use_of_the_cache(cache, name, value):
+    """It was read only when a new database was stored, after the work, and never with every
+    file there (a bad-input sweep); now any command refuses it before its work."""
+    proc = subprocess.run([sys.executable, "-m", "shipstar", "apparent", "--time", "2013-03-15T12:16:00",
+                           "--lat-deg", "31.9", "--lon-deg", "120.3"], capture_output=True, text=True, timeout=120,
+                          env=dict(os.environ, SHIPSTAR_CACHE_DIR=str(cache), **{name: value}))
+    assert proc.returncode == 2 and proc.stdout == "", proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and f"{name} must be" in lines[0] and repr(value) in lines[0], proc.stderr
+
+
 def test_sorted_magnitudes_cache_is_the_catalog(cache, monkeypatch):
     """The on-disk sorted magnitudes (default magnitude limits) are the catalog's own."""
     import numpy as np

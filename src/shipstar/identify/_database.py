@@ -634,27 +634,16 @@ def clear_cache(older_than_days=None, root=None) -> list:
     return removed
 
 
-def _limit(name: str, default: float) -> float:
-    text = os.environ.get(name, "").strip()
-    if not text:
-        return default
-    try:
-        value = float(text)
-    except ValueError:
-        raise ShipstarError(f"{name} must be a number, got {text!r}") from None
-    if not value >= 0:
-        raise ShipstarError(f"{name} must be >= 0, got {text!r}")
-    return value
-
-
 def prune_cache(keep=(), root=None, max_mb=None, max_files=None) -> list:
     """Keep the cache within ``max_mb`` megabytes and ``max_files`` files (defaults:
     :data:`CACHE_MAX_MB`, :data:`CACHE_MAX_FILES`, or the environment's
     ``SHIPSTAR_CACHE_MAX_MB`` / ``SHIPSTAR_CACHE_MAX_FILES``) by removing the least
     recently used files, never those in ``keep``; returns the entries removed.  Run
     after every database written."""
-    max_mb = _limit("SHIPSTAR_CACHE_MAX_MB", CACHE_MAX_MB) if max_mb is None else float(max_mb)
-    max_files = (_limit("SHIPSTAR_CACHE_MAX_FILES", CACHE_MAX_FILES) if max_files is None
+    from shipstar.sky.catalog import cache_limit
+
+    max_mb = cache_limit("SHIPSTAR_CACHE_MAX_MB", CACHE_MAX_MB) if max_mb is None else float(max_mb)
+    max_files = (cache_limit("SHIPSTAR_CACHE_MAX_FILES", CACHE_MAX_FILES) if max_files is None
                  else int(max_files))
     keep = {str(k) for k in keep}
     files = cache_files(root)

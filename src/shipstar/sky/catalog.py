@@ -309,12 +309,33 @@ def _catalog_from_hip2(columns: dict) -> StarCatalog:
 # Disk and memory caches
 # ---------------------------------------------------------------------------------------
 
+def cache_limit(name: str, default: float) -> float:
+    """The cache bound in the environment variable ``name`` (``SHIPSTAR_CACHE_MAX_MB``,
+    ``SHIPSTAR_CACHE_MAX_FILES``), or ``default`` when it is unset; a value that is not a
+    number >= 0 is a one-line ShipstarError."""
+    text = os.environ.get(name, "").strip()
+    if not text:
+        return default
+    try:
+        value = float(text)
+    except ValueError:
+        raise ShipstarError(f"{name} must be a number, got {text!r}") from None
+    if not value >= 0:
+        raise ShipstarError(f"{name} must be >= 0, got {text!r}")
+    return value
+
+
 def cache_dir() -> pathlib.Path:
     """Directory of shipstar's caches: ``$SHIPSTAR_CACHE_DIR`` or ``~/.cache/shipstar``.
 
     Never the working directory: a relative ``$SHIPSTAR_CACHE_DIR`` is refused.  The
-    directory is created when a cache file is first written, not here.
+    directory is created when a cache file is first written, not here.  The cache's
+    bounds in the environment are checked here too, at the first use of the cache: they
+    were read only when a new database was stored, after the work (and never when every
+    file was there already).
     """
+    for name in ("SHIPSTAR_CACHE_MAX_MB", "SHIPSTAR_CACHE_MAX_FILES"):
+        cache_limit(name, 0.0)
     env = os.environ.get("SHIPSTAR_CACHE_DIR", "").strip()
     if env:
         path = pathlib.Path(env).expanduser()
