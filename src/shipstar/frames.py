@@ -32,7 +32,7 @@ __all__ = [
     "rot_x", "rot_y", "rot_z",
     "C_hor_from_deck", "ship_angles_from_C_hor_from_deck",
     "C_deck_from_sensor", "installation_angles_from_C_deck_from_sensor",
-    "gimbal_lock_mask",
+    "gimbal_lock_mask", "rotation_vectors_rad",
     "unit_from_az_el", "az_el_from_unit",
     "unit_from_ra_dec", "ra_dec_from_unit",
     "C_icrs_from_sensor", "ra_dec_roll_from_C_icrs_from_sensor",
@@ -362,6 +362,17 @@ def rotation_angle_rad(C):
     s = np.stack([C[..., 2, 1] - C[..., 1, 2], C[..., 0, 2] - C[..., 2, 0],
                   C[..., 1, 0] - C[..., 0, 1]], -1)
     return np.arctan2(0.5 * np.linalg.norm(s, axis=-1), 0.5 * (tr - 1.0))
+
+
+def rotation_vectors_rad(C) -> np.ndarray:
+    """Rotation vectors (rad) ``phi`` with ``C = exp([phi x])``, shape ``(N, 3)``, of rotation
+    matrices ``(N, 3, 3)`` (or one (3, 3)) whose angles are below pi."""
+    C = np.asarray(C, float).reshape(-1, 3, 3)
+    s = np.stack([C[:, 2, 1] - C[:, 1, 2], C[:, 0, 2] - C[:, 2, 0], C[:, 1, 0] - C[:, 0, 1]], axis=1)
+    n = np.sqrt(np.einsum("ij,ij->i", s, s))
+    angle = np.arctan2(0.5 * n, 0.5 * (C[:, 0, 0] + C[:, 1, 1] + C[:, 2, 2] - 1.0))
+    scale = np.divide(angle, n, out=np.full_like(n, 0.5), where=n > 0.0)      # angle / (2 sin angle) * 2
+    return s * scale[:, None]
 
 
 def orthonormalize(C):

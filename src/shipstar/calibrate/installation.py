@@ -33,6 +33,7 @@ from shipstar.calibrate._installation_mean import angle_deviations_rad, mean_rot
 from shipstar.calibrate._installation_model import DockConditions, Installation
 from shipstar.calibrate._installation_toml import load_installation, save_installation
 from shipstar.errors import AccuracyWarning, ShipstarError
+from shipstar.frames import rotation_vectors_rad
 from shipstar.units import ASEC2RAD, RAD2ASEC
 
 __all__ = [
@@ -82,16 +83,6 @@ def installation_from_frame(C_hor_from_sensor, C_hor_from_deck) -> np.ndarray:
 STILL_SHIP_ARCSEC = (200.0, 20.0)               # (about the boresight, across it), per axis
 
 
-def _rotation_vectors(C) -> np.ndarray:
-    """Rotation vectors (rad) of a stack of rotation matrices, shape (M, 3)."""
-    v = 0.5 * np.stack([C[:, 2, 1] - C[:, 1, 2], C[:, 0, 2] - C[:, 2, 0], C[:, 1, 0] - C[:, 0, 1]], axis=-1)
-    s = np.linalg.norm(v, axis=-1)
-    c = 0.5 * (np.trace(C, axis1=1, axis2=2) - 1.0)
-    angle = np.arctan2(s, c)
-    scale = np.where(s > 1e-12, angle / np.maximum(s, 1e-300), 1.0)
-    return v * scale[:, None]
-
-
 def still_ship_test(C_deck_from_sensor, mean, covariance_rad2=None, *, k_sigma: float = 5.0,
                     still_arcsec=STILL_SHIP_ARCSEC) -> dict:
     """Whether frames' installation matrices scatter as a still ship's can.
@@ -125,7 +116,7 @@ def still_ship_test(C_deck_from_sensor, mean, covariance_rad2=None, *, k_sigma: 
 
     C = np.asarray(C_deck_from_sensor, float)
     n = len(C)
-    d = _rotation_vectors(np.einsum("ji,mjk->mik", np.asarray(mean, float), C))
+    d = rotation_vectors_rad(np.einsum("ji,mjk->mik", np.asarray(mean, float), C))    # log(mean^T C)
     allow = np.diag(np.square(np.array([still_arcsec[0], still_arcsec[1], still_arcsec[1]], float) * ASEC2RAD))
     P = np.zeros((n, 3, 3)) if covariance_rad2 is None else np.asarray(covariance_rad2, float).reshape(n, 3, 3)
     Q = P + allow

@@ -45,6 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from shipstar.attitude import _ckernels
+from shipstar.frames import rotation_vectors_rad as rotvecs   # rotation vectors (N, 3) of (N, 3, 3)
 from shipstar.units import ASEC2RAD
 
 __all__ = ["MOTION_WINDOW_S", "MOTION_DEGREE", "MIN_MOTION_SAMPLES", "SIGMA_FLOOR_ARCSEC", "MotionFit",
@@ -58,16 +59,6 @@ MOTION_DEGREE = 4
 MIN_MOTION_SAMPLES = 5
 #: Added in quadrature to every attitude's sigma about each axis before weighting (arcsec).
 SIGMA_FLOOR_ARCSEC = 0.01
-
-
-def rotvecs(C) -> np.ndarray:
-    """Rotation vectors ``(N, 3)`` of rotation matrices ``(N, 3, 3)`` (angles below pi)."""
-    C = np.asarray(C, float).reshape(-1, 3, 3)
-    s = np.stack([C[:, 2, 1] - C[:, 1, 2], C[:, 0, 2] - C[:, 2, 0], C[:, 1, 0] - C[:, 0, 1]], axis=1)
-    n = np.sqrt(np.einsum("ij,ij->i", s, s))
-    angle = np.arctan2(0.5 * n, 0.5 * (C[:, 0, 0] + C[:, 1, 1] + C[:, 2, 2] - 1.0))
-    scale = np.divide(angle, n, out=np.full_like(n, 0.5), where=n > 0.0)      # angle / (2 sin angle) * 2
-    return s * scale[:, None]
 
 
 def rotvec(C) -> np.ndarray:
